@@ -1,0 +1,34 @@
+"""ament_python package edm_planner (works with colcon and with plain pip)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "edm_planner"
+
+# One entry per node; the executables land in lib/edm_planner (ros2 run) and,
+# under pip, in the environment's bin/.
+NODES = {
+    "geometry_loader": "edm_planner.nodes.geometry_loader:main",
+}
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml"))),
+        (f"share/{PACKAGE}/config/rotor37", sorted(glob("config/rotor37/*"))),
+    ],
+    include_package_data=True,
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="edm_planner developers",
+    maintainer_email="edm-planner@example.com",
+    description="Five-axis EDM electrode path planning for integral shrouded blisks (ROS 2 Jazzy).",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={"console_scripts": [f"{name} = {target}" for name, target in NODES.items()]},
+)

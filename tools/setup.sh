@@ -1,0 +1,55 @@
+#!/usr/bin/env bash
+# Bring .venv up to date: pinned dependencies, the ROS wheel fixes, the
+# interface package and edm_planner installed in the ament layout.
+# Each step runs only when its inputs changed (stamps hold content hashes),
+# so a second run with nothing changed takes about a second.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ROOT=$PWD
+VENV=$ROOT/.venv
+STAMPS=$VENV/.stamps
+PY=${PYTHON:-python3}
+
+hash_of() { cat "$@" 2>/dev/null | sha256sum | cut -c1-16; }
+fresh() { [ -f "$STAMPS/$1" ] && [ "$(cat "$STAMPS/$1")" = "$2" ]; }
+# pip, with its output kept in build/pip.log and shown only when it fails
+pip_quiet() {
+  mkdir -p build
+  "$VENV/bin/pip" -q --disable-pip-version-check "$@" > build/pip.log 2>&1 \
+    || { grep -v "^WARNING: Location" build/pip.log | tail -40; echo "setup: pip $* failed"; exit 1; }
+}
+stamp() { mkdir -p "$STAMPS"; echo "$2" > "$STAMPS/$1"; }
+
+if [ ! -x "$VENV/bin/python" ]; then
+  echo "setup: creating $VENV"
+  "$PY" -m venv "$VENV"
+fi
+
+h=$(hash_of requirements.txt constraints.txt)
+if ! fresh deps "$h"; then
+  echo "setup: installing pinned dependencies (about 30 s)"
+  pip_quiet install -r requirements.txt -c constraints.txt
+  "$VENV/bin/python" tools/fix_ros_wheels.py
+  stamp deps "$h"
+fi
+
+h=$(hash_of $(find msg_defs -type f | sort) requirements.txt)
+if ! fresh msgs "$h" || [ ! -d "$VENV/share/edm_planner_msgs" ]; then
+  echo "setup: building the interface package edm_planner_msgs (about 30 s)"
+  export VIRTUAL_ENV=$VENV
+  cmake -S msg_defs -B build/edm_planner_msgs -DCMAKE_INSTALL_PREFIX="$VENV" \
+    -DCMAKE_PREFIX_PATH="$VENV" -DPython3_EXECUTABLE="$VENV/bin/python" \
+    -DBUILD_TESTING=OFF > build/cmake-configure.log 2>&1 \
+    || { mkdir -p build; cat build/cmake-configure.log; exit 1; }
+  cmake --build build/edm_planner_msgs -j2 > build/cmake-build.log 2>&1 || { tail -50 build/cmake-build.log; exit 1; }
+  cmake --install build/edm_planner_msgs > build/cmake-install.log 2>&1 || { tail -20 build/cmake-install.log; exit 1; }
+  stamp msgs "$h"
+fi
+
+h=$(hash_of setup.py setup.cfg package.xml resource/edm_planner $(find config -type f | sort))
+if ! fresh pkg "$h"; then
+  echo "setup: installing edm_planner (editable) in the ament layout"
+  pip_quiet install --no-deps --no-build-isolation -e .
+  "$VENV/bin/python" tools/install_ament_layout.py
+  stamp pkg "$h"
+fi
