@@ -29,11 +29,13 @@ class BladeFace:
         The face's section points in W [mm] (``BladeSections.face_points``).
     name : str
         For error messages.
+    knot_rule : {'chord', 'paper'}
+        Knot placement of the reconstruction (see ``nurbs.KNOT_RULES``).
     """
 
-    def __init__(self, points, name="blade face"):
+    def __init__(self, points, name="blade face", knot_rule="chord"):
         self.name = name
-        self.surface = interpolate_surface(np.asanyarray(points, dtype=np.float64), name=name)
+        self.surface = interpolate_surface(np.asanyarray(points, dtype=np.float64), name=name, knot_rule=knot_rule)
         # a dense (u, v) sampling gives the Newton iterations their start
         n = 64
         uu, vv = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))

@@ -1,0 +1,331 @@
+"""The blisk: hub and shroud of revolution, N copies of one blade, its channels.
+
+:class:`Blisk` is the geometry every other part of the product reads. It is
+built from a :class:`~.sections.BladeSections` (whatever the blade's source)
+and two :class:`~.profiles.RevolutionProfile`, validated on construction, and
+answers the questions the planner asks: the faces of the channel k, their
+meshes, the walls' angles at a meridional position.
+
+Channel k lies between the *suction* face of blade k (its +theta face) and the
+*pressure* face of blade k+1 (its -theta face), above the hub and below the
+shroud. Blade k is blade 0 rotated by ``k * pitch`` about X.
+"""
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+import trimesh
+
+from ..constants import SIZE, TOL
+from ..errors import GeometryError
+from .blade_mesh import closed_blade_mesh, face_grid_mesh
+from .frames import cylindrical_to_cartesian, rotation_about_x
+from .profiles import RevolutionProfile
+from .sections import BladeSections
+from .surfaces import BladeFace
+
+#: labels of the channel surfaces, in the order used by every interface
+CHANNEL_SURFACES = ("suction", "pressure", "hub", "shroud")
+MODEL_FORMAT = "edm_planner.geometry/1"
+
+
+def extend_to_walls(sections, hub, shroud, overlap):
+    """Extend a blade whose end sections stop at (or short of) the hub or shroud.
+
+    Measured blades end exactly on the hub and shroud lines (Rotor 37's
+    sections 1 and 13 are the intersections), so interpolation noise could
+    open a sliver between blade and wall. The blade is continued linearly
+    (per station, along the first/last section step) until it reaches
+    ``overlap`` mm into each wall; a blade that already does is returned as is.
+
+    Returns
+    -------
+    BladeSections
+    """
+    arrays = [sections.x, sections.r, sections.theta_minus, sections.theta_plus]
+    stacked = np.stack(arrays)                      # (4, S, C)
+    out = stacked
+    # hub side: radius must reach hub(x) - overlap
+    first, second = stacked[:, 0], stacked[:, 1]
+    short = first[1] - (hub.radius_at(first[0]) - overlap)
+    if np.any(short > 0):
+        dr = np.maximum(second[1] - first[1], 1e-9)
+        t = np.maximum(short, 0) / dr
+        extra = first - t * (second - first)
+        out = np.concatenate([extra[:, None], out], axis=1)
+    last, before = out[:, -1], out[:, -2]
+    short = (shroud.radius_at(last[0]) + overlap) - last[1]
+    if np.any(short > 0):
+        dr = np.maximum(last[1] - before[1], 1e-9)
+        t = np.maximum(short, 0) / dr
+        extra = last + t * (last - before)
+        out = np.concatenate([out, extra[:, None]], axis=1)
+    if out is stacked:
+        return sections
+    # a zero-thickness edge extrapolates to a hair's crossing: keep thickness >= 0
+    out[3] = np.maximum(out[3], out[2])
+    return BladeSections(*out)
+
+
+@dataclass(frozen=True, eq=False)
+class Blisk:
+    """An integral shrouded blisk.
+
+    Parameters
+    ----------
+    blade_count : int
+        N >= 2 blades, pitch 2*pi/N.
+    hub, shroud : RevolutionProfile
+        Meridional profiles [mm].
+    blade : BladeSections
+        Blade 0 [mm, rad]; extended into hub and shroud if it stops at them.
+    name : str
+    source : str
+        'parametric', 'sections' or 'mesh' (for the summary).
+    knot_rule : str
+        'chord' (default, accurate) or 'paper' (Liu 2024 eq. 15) for the face reconstruction.
+    """
+
+    blade_count: int
+    hub: RevolutionProfile
+    shroud: RevolutionProfile
+    blade: BladeSections
+    name: str = ""
+    source: str = "parametric"
+    knot_rule: str = "chord"
+    _cache: dict = field(default_factory=dict, init=False, repr=False)
+
+    def __post_init__(self):
+        n = self.blade_count
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
+            raise GeometryError(f"blade_count: must be an integer >= 2, got {n!r}")
+        object.__setattr__(self, "blade_count", int(n))
+        self._validate_profiles()
+        height = self.channel_height_range[0]
+        object.__setattr__(self, "blade", extend_to_walls(self.blade, self.hub, self.shroud, 0.02 * height))
+        self._validate_blade()
+
+    # -- validation -----------------------------------------------------------
+    def _validate_profiles(self):
+        hub_r = self.hub.points[:, 1]
+        if hub_r.min() < SIZE.min_radius:
+            raise GeometryError(
+                f"hub_profile: radius {hub_r.min():g} mm is implausibly small for a blisk; "
+                "are the values in metres? All lengths are millimetres")
+        if self.shroud.points[:, 1].max() > SIZE.max_radius:
+            raise GeometryError(
+                f"shroud_profile: radius {self.shroud.points[:, 1].max():g} mm is implausibly large; "
+                "are the values in micrometres or another unit? All lengths are millimetres")
+        lo = max(self.hub.x_range[0], self.shroud.x_range[0])
+        hi = min(self.hub.x_range[1], self.shroud.x_range[1])
+        if hi <= lo:
+            raise GeometryError("hub_profile and shroud_profile do not overlap in x")
+        xs = np.linspace(lo, hi, 400)
+        height = self.shroud.radius_at(xs) - self.hub.radius_at(xs)
+        if height.min() < SIZE.min_channel_height:
+            i = int(np.argmin(height))
+            raise GeometryError(
+                f"hub_profile is not below shroud_profile: at x = {xs[i]:.3f} mm the hub radius "
+                f"{self.hub.radius_at(xs[i]):.3f} mm is not at least {SIZE.min_channel_height} mm below "
+                f"the shroud radius {self.shroud.radius_at(xs[i]):.3f} mm")
+
+    def _validate_blade(self):
+        b = self.blade
+        lo = max(self.hub.x_range[0], self.shroud.x_range[0])
+        hi = min(self.hub.x_range[1], self.shroud.x_range[1])
+        if b.x.min() < lo - 1e-6 or b.x.max() > hi + 1e-6:
+            raise GeometryError(
+                f"blade: axial extent [{b.x.min():.3f}, {b.x.max():.3f}] mm reaches beyond the hub/shroud "
+                f"profiles' common range [{lo:.3f}, {hi:.3f}] mm; extend the profiles")
+        # each blade occupies [theta_minus, theta_plus] at (x, r); its neighbour the same + pitch
+        gap = (b.theta_minus + self.pitch - b.theta_plus) * b.r
+        if gap.min() < TOL.min_feature:
+            s, c = np.unravel_index(np.argmin(gap), gap.shape)
+            raise GeometryError(
+                f"blade: intersects its neighbour blade at x = {b.x[s, c]:.3f} mm, r = {b.r[s, c]:.3f} mm "
+                f"(blade angular thickness {b.theta_plus[s, c] - b.theta_minus[s, c]:.4f} rad exceeds the "
+                f"pitch 2*pi/{self.blade_count} = {self.pitch:.4f} rad); check blade_count and the blade's units")
+        height = self.channel_height_range[1]
+        if np.ptp(b.x) > 20 * max(height, 1e-9) or np.ptp(b.x) < 1e-3 * height:
+            raise GeometryError(
+                f"blade: axial extent {np.ptp(b.x):g} mm is absurd against the channel height "
+                f"{height:g} mm; check the units of the blade data (mm expected)")
+
+    # -- basic figures ---------------------------------------------------------
+    @property
+    def pitch(self):
+        """Angle between neighbouring blades [rad]."""
+        return 2.0 * np.pi / self.blade_count
+
+    @property
+    def axial_range(self):
+        """(x_min, x_max) of the blade [mm]."""
+        return float(self.blade.x.min()), float(self.blade.x.max())
+
+    @property
+    def channel_height_range(self):
+        """(min, max) of shroud minus hub radius over the profiles' common range [mm]."""
+        lo = max(self.hub.x_range[0], self.shroud.x_range[0])
+        hi = min(self.hub.x_range[1], self.shroud.x_range[1])
+        xs = np.linspace(lo, hi, 400)
+        h = self.shroud.radius_at(xs) - self.hub.radius_at(xs)
+        return float(h.min()), float(h.max())
+
+    @property
+    def full_span_axial_range(self):
+        """(x_start, x_end) [mm] where both blade faces exist over the whole span."""
+        return float(self.blade.x[:, 0].max()), float(self.blade.x[:, -1].min())
+
+    # -- faces -----------------------------------------------------------------
+    @cached_property
+    def suction_face(self):
+        """The +theta face of blade 0 (the suction side of channel 0)."""
+        return BladeFace(self.blade.face_points("plus"), name="blade suction face", knot_rule=self.knot_rule)
+
+    @cached_property
+    def pressure_face(self):
+        """The -theta face of blade 0; channel 0's pressure wall is this face of blade 1."""
+        return BladeFace(self.blade.face_points("minus"), name="blade pressure face", knot_rule=self.knot_rule)
+
+    def wall_angles(self, x, r, channel=0, with_gradient=False):
+        """Angles of channel k's two blade walls at meridional positions (x, r).
+
+        Returns
+        -------
+        theta_suction, theta_pressure : (n,) float
+            [rad]; the channel is ``theta_suction < theta < theta_pressure``.
+        inside : (n,) bool
+            Both walls exist at (x, r).
+        gradients : ((n, 2), (n, 2)), only with ``with_gradient``
+        """
+        base = channel * self.pitch
+        res_s = self.suction_face.theta_at(x, r, with_gradient)
+        res_p = self.pressure_face.theta_at(x, r, with_gradient)
+        th_s, th_p = res_s[0] + base, res_p[0] + base + self.pitch
+        inside = res_s[1] & res_p[1]
+        if with_gradient:
+            return th_s, th_p, inside, (res_s[2], res_p[2])
+        return th_s, th_p, inside
+
+    def channel_transform(self, channel):
+        """4x4 transform taking channel 0 onto channel k (rotation k*pitch about X)."""
+        return rotation_about_x(channel * self.pitch)
+
+    # -- meshes ----------------------------------------------------------------
+    @cached_property
+    def blade_mesh(self):
+        """Closed, watertight mesh of blade 0 sampled from its spline faces [mm]."""
+        minus, plus = self._face_grids()
+        return closed_blade_mesh(minus, plus)
+
+    def _face_grids(self, resolution=0.5):
+        chord = np.ptp(self.blade.x) + 1e-9
+        span = np.ptp(self.blade.r) + 1e-9
+        nu = int(np.clip(np.ceil(2 * chord / resolution), 40, 400))
+        nv = int(np.clip(np.ceil(span / resolution), 20, 200))
+        # cluster stations at the edges (cosine spacing), where curvature is highest
+        u = 0.5 - 0.5 * np.cos(np.linspace(0, np.pi, nu))
+        v = np.linspace(0, 1, nv)
+        uu, vv = np.meshgrid(u, v)
+        return (self.pressure_face.surface.evaluate(uu, vv), self.suction_face.surface.evaluate(uu, vv))
+
+    def channel_meshes(self, channel=0, resolution=0.5):
+        """Labelled surface meshes bounding channel k, normals pointing into the channel.
+
+        Parameters
+        ----------
+        channel : int
+        resolution : float
+            Target edge length along the walls [mm].
+
+        Returns
+        -------
+        dict
+            ``{'suction', 'pressure', 'hub', 'shroud'} -> trimesh.Trimesh`` in W.
+        """
+        key = ("channel_meshes", resolution)
+        if key not in self._cache:
+            self._cache[key] = self._channel0_meshes(resolution)
+        rot = self.channel_transform(channel)
+        out = {}
+        for label, mesh in self._cache[key].items():
+            m = mesh.copy()
+            if channel:
+                m.apply_transform(rot)
+            out[label] = m
+        return out
+
+    def _channel0_meshes(self, resolution):
+        minus, plus = self._face_grids(resolution)
+        pressure = cylindrical_to_cartesian(*_cyl(minus, self.pitch))
+        meshes = {"suction": face_grid_mesh(plus), "pressure": face_grid_mesh(pressure)}
+        # hub and shroud patches over the channel sector, a margin beyond the blade
+        x0, x1 = self.axial_range
+        margin = 0.25 * (x1 - x0)
+        lo = max(self.hub.x_range[0], self.shroud.x_range[0], x0 - margin)
+        hi = min(self.hub.x_range[1], self.shroud.x_range[1], x1 + margin)
+        th_lo = float(self.blade.theta_minus.min())
+        th_hi = float(self.blade.theta_plus.max()) + self.pitch
+        for label, profile in (("hub", self.hub), ("shroud", self.shroud)):
+            prof = profile.sample(lo, hi, step=resolution)
+            r_mean = prof[:, 1].mean()
+            nth = int(np.clip(np.ceil((th_hi - th_lo) * r_mean / resolution), 8, 400))
+            th = np.linspace(th_lo, th_hi, nth)
+            grid = cylindrical_to_cartesian(prof[None, :, 0], prof[None, :, 1], th[:, None])
+            meshes[label] = face_grid_mesh(grid)
+        # orient every normal into the channel
+        for label, mesh in meshes.items():
+            c = mesh.triangles_center
+            _, r, th = _xr_theta(c)
+            if label == "suction":
+                into = np.column_stack([np.zeros_like(r), -np.sin(th), np.cos(th)])
+            elif label == "pressure":
+                into = -np.column_stack([np.zeros_like(r), -np.sin(th), np.cos(th)])
+            else:
+                radial = np.column_stack([np.zeros_like(r), np.cos(th), np.sin(th)])
+                into = radial if label == "hub" else -radial
+            if np.einsum("ij,ij->i", mesh.face_normals, into).mean() < 0:
+                mesh.invert()
+        return meshes
+
+    # -- serialisation ---------------------------------------------------------
+    def to_dict(self):
+        """Lossless plain-data form (the ``model_json`` of the geometry topic)."""
+        b = self.blade
+        return {
+            "format": MODEL_FORMAT,
+            "name": self.name,
+            "source": self.source,
+            "knot_rule": self.knot_rule,
+            "blade_count": self.blade_count,
+            "hub_profile": self.hub.points.tolist(),
+            "shroud_profile": self.shroud.points.tolist(),
+            "blade_sections": {
+                "x": b.x.tolist(), "r": b.r.tolist(),
+                "theta_minus": b.theta_minus.tolist(), "theta_plus": b.theta_plus.tolist(),
+            },
+        }
+
+    @classmethod
+    def from_dict(cls, data):
+        """Rebuild a Blisk from :meth:`to_dict` output."""
+        if data.get("format") != MODEL_FORMAT:
+            raise GeometryError(f"geometry model: unknown format {data.get('format')!r}, expected {MODEL_FORMAT}")
+        s = data["blade_sections"]
+        return cls(
+            blade_count=data["blade_count"],
+            hub=RevolutionProfile(data["hub_profile"], "hub_profile"),
+            shroud=RevolutionProfile(data["shroud_profile"], "shroud_profile"),
+            blade=BladeSections(s["x"], s["r"], s["theta_minus"], s["theta_plus"]),
+            name=data.get("name", ""), source=data.get("source", "sections"),
+            knot_rule=data.get("knot_rule", "chord"))
+
+
+def _xr_theta(points):
+    return points[..., 0], np.hypot(points[..., 1], points[..., 2]), np.arctan2(points[..., 2], points[..., 1])
+
+
+def _cyl(points, dtheta):
+    x, r, th = _xr_theta(points)
+    return x, r, th + dtheta

@@ -1,0 +1,284 @@
+"""Electrode design (Huang section II; Liu 2024 sections 1 and 4.1).
+
+The primitive electrode is the channel volume over an axial range. It is
+shrunk by the discharge gap (every face offset from its channel wall by
+exactly the gap: hub and shroud by exact normal offsets of their profiles,
+the blade faces by a per-vertex solve on the exact distance to the
+reconstructed face), reduced circumferentially (side faces rotated about X
+by h, Huang's H_h) and radially (the shroud side contracted), and optionally
+split into two sub-electrodes with an overlap.
+
+The electrode is a structured volume lattice (x along the axis, rho from hub
+to shroud, tau from the suction to the pressure wall) whose boundary is a
+closed, watertight triangle mesh. Its frame has its origin at the electrode's
+centre of volume at the final pose and axes parallel to W for channel 0; the
+final pose in channel k is ``rotation_about_x(k * pitch) @ final_pose``.
+"""
+
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+import trimesh
+
+from ..constants import TOL
+from ..errors import GeometryError
+from .frames import cylindrical_to_cartesian, rotation_about_x
+
+SIDES = ("left", "right", "upper", "lower")
+REDUCTION_SIDES = ("left", "right", "both")
+SPLITS = ("none", "left_right", "front_rear")
+
+
+@dataclass(frozen=True)
+class ElectrodeDesign:
+    """Electrode design parameters (YAML key ``electrode:``; all optional).
+
+    Attributes
+    ----------
+    discharge_gap : float
+        Offset of every electrode face from the channel [mm], 0.01 .. 0.5.
+    circumferential_reduction : float
+        h [rad] >= 0: the side faces rotate about X towards the channel middle.
+    reduction_side : str
+        'left' (the suction side), 'right' (the pressure side) or 'both' (h/2 each).
+    radial_reduction : float
+        Contraction of the shroud-side face [mm] >= 0.
+    axial_range : tuple of float or None
+        (x_start, x_end) [mm]; default: where both blade faces span the whole channel.
+    split : str
+        'none', 'left_right' or 'front_rear'.
+    split_fraction : float
+        Where the split falls, 0..1 of the angle (left/right) or of the axial range (front/rear).
+    split_overlap : float
+        Overlap of the two sub-electrodes [mm].
+    resolution : float
+        Target edge length of the electrode lattice [mm].
+    """
+
+    discharge_gap: float = 0.1
+    circumferential_reduction: float = 0.0
+    reduction_side: str = "both"
+    radial_reduction: float = 0.0
+    axial_range: tuple = None
+    split: str = "none"
+    split_fraction: float = 0.5
+    split_overlap: float = 0.5
+    resolution: float = 0.5
+
+    def __post_init__(self):
+        w = "electrode"
+        for name in ("discharge_gap", "circumferential_reduction", "radial_reduction",
+                     "split_fraction", "split_overlap", "resolution"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+                raise GeometryError(f"{w}.{name}: must be a number, got {value!r}")
+            if not np.isfinite(value):
+                raise GeometryError(f"{w}.{name}: must be finite, got {value!r}")
+            object.__setattr__(self, name, float(value))
+        if not 0.01 <= self.discharge_gap <= 0.5:
+            raise GeometryError(f"{w}.discharge_gap: must lie in 0.01 .. 0.5 mm, got {self.discharge_gap:g}")
+        if self.circumferential_reduction < 0 or self.circumferential_reduction > 0.5:
+            raise GeometryError(
+                f"{w}.circumferential_reduction: must lie in 0 .. 0.5 rad, got {self.circumferential_reduction:g}")
+        if self.radial_reduction < 0:
+            raise GeometryError(f"{w}.radial_reduction: must be >= 0 mm, got {self.radial_reduction:g}")
+        if self.reduction_side not in REDUCTION_SIDES:
+            raise GeometryError(f"{w}.reduction_side: must be one of {REDUCTION_SIDES}, got {self.reduction_side!r}")
+        if self.split not in SPLITS:
+            raise GeometryError(f"{w}.split: must be one of {SPLITS}, got {self.split!r}")
+        if not 0.05 <= self.split_fraction <= 0.95:
+            raise GeometryError(f"{w}.split_fraction: must lie in 0.05 .. 0.95, got {self.split_fraction:g}")
+        if self.split_overlap < 0:
+            raise GeometryError(f"{w}.split_overlap: must be >= 0 mm, got {self.split_overlap:g}")
+        if not 0.05 <= self.resolution <= 5:
+            raise GeometryError(f"{w}.resolution: must lie in 0.05 .. 5 mm, got {self.resolution:g}")
+        if self.axial_range is not None:
+            ar = self.axial_range
+            if (not isinstance(ar, (list, tuple)) or len(ar) != 2
+                    or not all(isinstance(v, (int, float)) and np.isfinite(v) for v in ar) or ar[0] >= ar[1]):
+                raise GeometryError(f"{w}.axial_range: must be [x_start, x_end] in mm with x_start < x_end, got {ar!r}")
+            object.__setattr__(self, "axial_range", (float(ar[0]), float(ar[1])))
+
+    @classmethod
+    def from_dict(cls, data, where="electrode"):
+        """Design from a YAML mapping; unknown keys are errors."""
+        if data is None:
+            return cls()
+        if not isinstance(data, dict):
+            raise GeometryError(f"{where}: must be a mapping of design keys")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise GeometryError(f"{where}: unknown key(s) {unknown}; known: {sorted(known)}")
+        return cls(**data)
+
+    def to_dict(self):
+        d = {f.name: getattr(self, f.name) for f in fields(self)}
+        d["axial_range"] = list(self.axial_range) if self.axial_range else None
+        return d
+
+
+@dataclass(frozen=True, eq=False)
+class Electrode:
+    """A designed electrode.
+
+    Attributes
+    ----------
+    electrode_id : str
+        'main', or 'left'/'right'/'front'/'rear' for split electrodes.
+    mesh : trimesh.Trimesh
+        Closed, watertight mesh in the electrode frame [mm].
+    final_pose : (4, 4) float
+        Electrode frame -> W at the machining pose in channel 0.
+    samples : dict
+        'left', 'right', 'upper', 'lower' -> (n, 3) surface points in the electrode frame [mm]
+        (left faces the suction wall, right the pressure wall, upper the shroud, lower the hub).
+    """
+
+    electrode_id: str
+    mesh: trimesh.Trimesh
+    final_pose: np.ndarray
+    samples: dict = field(default_factory=dict)
+
+    def pose_in_channel(self, channel, pitch):
+        """Final pose (4x4) in channel k."""
+        return rotation_about_x(channel * pitch) @ self.final_pose
+
+
+def _offset_wall(face, x, r, theta, grad, gap, sign, iterations=4):
+    """Angles at (x, r) whose exact distance to a blade face is ``gap``.
+
+    Starts from the first-order offset of the surface theta = f(x, r):
+    d(theta) = gap * |grad F|, |grad F| = sqrt(f_x^2 + f_r^2 + 1/r^2), and
+    corrects it with the measured distance (secant on the ratio).
+    """
+    delta = gap * np.sqrt(grad[:, 0] ** 2 + grad[:, 1] ** 2 + 1.0 / r**2)
+    for _ in range(iterations):
+        q = cylindrical_to_cartesian(x, r, theta + sign * delta)
+        d = face.closest_points(q)[1]
+        ok = d > 1e-12
+        delta = np.where(ok, delta * gap / np.where(ok, d, 1.0), delta)
+    return theta + sign * delta
+
+
+def _box_mesh(lattice):
+    """Closed triangle mesh of the boundary of a structured (nx, nr, nt, 3) lattice."""
+    nx, nr, nt, _ = lattice.shape
+    idx = np.arange(nx * nr * nt).reshape(nx, nr, nt)
+    faces = []
+    for grid in (idx[0], idx[-1], idx[:, 0], idx[:, -1], idx[:, :, 0], idx[:, :, -1]):
+        a, b = grid[:-1, :-1].ravel(), grid[1:, :-1].ravel()
+        c, d = grid[1:, 1:].ravel(), grid[:-1, 1:].ravel()
+        faces.append(np.column_stack([a, b, c]))
+        faces.append(np.column_stack([a, c, d]))
+    mesh = trimesh.Trimesh(lattice.reshape(-1, 3), np.vstack(faces), process=True)
+    mesh.remove_unreferenced_vertices()
+    trimesh.repair.fix_normals(mesh)
+    if not (mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0):
+        raise GeometryError("electrode: the electrode mesh is not closed (internal error in the lattice)")
+    return mesh
+
+
+def design_electrodes(blisk, design=None):
+    """Design the electrode(s) of channel 0.
+
+    Parameters
+    ----------
+    blisk : Blisk
+    design : ElectrodeDesign, optional
+
+    Returns
+    -------
+    list of Electrode
+        One, or two for a split design.
+    """
+    design = design or ElectrodeDesign()
+    fx0, fx1 = blisk.full_span_axial_range
+    # default: the full-span range, inset 0.5 % of it so that the spline faces'
+    # footprint corners (curved between sections) still cover every station
+    inset = 0.005 * (fx1 - fx0)
+    x0, x1 = design.axial_range or (fx0 + inset, fx1 - inset)
+    if x0 < fx0 - 1e-9 or x1 > fx1 + 1e-9:
+        raise GeometryError(
+            f"electrode.axial_range: [{x0:g}, {x1:g}] mm reaches beyond [{fx0:.3f}, {fx1:.3f}] mm, "
+            "where both blade faces span the whole channel")
+    if design.split == "front_rear":
+        xs = x0 + design.split_fraction * (x1 - x0)
+        lo, hi = xs - 0.5 * design.split_overlap, xs + 0.5 * design.split_overlap
+        if lo <= x0 + design.resolution or hi >= x1 - design.resolution:
+            raise GeometryError("electrode.split_overlap: the overlap is longer than a sub-electrode")
+        parts = {"front": _walls(blisk, design, x0, hi), "rear": _walls(blisk, design, lo, x1)}
+    else:
+        parts = _split_sides(design, *_walls(blisk, design, x0, x1))
+    electrodes = []
+    for name, (X, R, tl, tr) in parts.items():
+        nt = max(4, int(np.ceil(np.max((tr - tl) * R) / design.resolution)) + 1)
+        tau = np.linspace(0, 1, nt)
+        T = tl[..., None] + tau * (tr - tl)[..., None]
+        lattice = cylindrical_to_cartesian(X[..., None], R[..., None], T)    # (nx, nr, nt, 3)
+        mesh = _box_mesh(lattice)
+        centre = mesh.center_mass
+        mesh.apply_translation(-centre)
+        pose = np.eye(4)
+        pose[:3, 3] = centre
+        local = lattice - centre
+        samples = {"left": local[:, :, 0].reshape(-1, 3), "right": local[:, :, -1].reshape(-1, 3),
+                   "lower": local[:, 0, :].reshape(-1, 3), "upper": local[:, -1, :].reshape(-1, 3)}
+        electrodes.append(Electrode(name, mesh, pose, samples))
+    return electrodes
+
+
+def _walls(blisk, design, x0, x1):
+    """Lattice stations and side angles over [x0, x1]: (X, R, theta_left, theta_right), each (nx, nr)."""
+    gap, res = design.discharge_gap, design.resolution
+    nx = max(8, int(np.ceil((x1 - x0) / res)) + 1)
+    x = np.linspace(x0, x1, nx)
+    hub = blisk.hub.offset(gap, x0 - 1, x1 + 1, step=min(res, 0.25))
+    shroud = blisk.shroud.offset(-gap, x0 - 1, x1 + 1, step=min(res, 0.25))
+    r_lo = hub.radius_at(x)
+    r_hi = shroud.radius_at(x) - design.radial_reduction
+    if np.min(r_hi - r_lo) < TOL.min_feature:
+        raise GeometryError(
+            f"electrode.radial_reduction: {design.radial_reduction:g} mm leaves no electrode "
+            f"(channel height after the gap is {np.min(shroud.radius_at(x) - r_lo):.3f} mm)")
+    nr = max(4, int(np.ceil(np.max(r_hi - r_lo) / res)) + 1)
+    rho = np.linspace(0, 1, nr)
+    X = np.repeat(x[:, None], nr, axis=1)
+    R = r_lo[:, None] + rho[None, :] * (r_hi - r_lo)[:, None]
+    xf, rf = X.ravel(), R.ravel()
+    th_s, th_p, inside, (g_s, g_p) = blisk.wall_angles(xf, rf, with_gradient=True)
+    if not inside.all():
+        raise GeometryError("electrode: the channel walls do not cover the electrode's axial range")
+    # discharge-gap offset on the exact distance to the reconstructed faces
+    th_l = _offset_wall(blisk.suction_face, xf, rf, th_s, g_s, gap, +1.0)
+    th_r = _offset_pressure(blisk, xf, rf, th_p, g_p, gap)
+    h = design.circumferential_reduction
+    if design.reduction_side == "left":
+        th_l = th_l + h
+    elif design.reduction_side == "right":
+        th_r = th_r - h
+    else:
+        th_l, th_r = th_l + h / 2, th_r - h / 2
+    width = (th_r - th_l) * rf
+    if width.min() < TOL.min_feature:
+        raise GeometryError(
+            f"electrode.circumferential_reduction: h = {h:g} rad leaves no electrode "
+            f"(narrowest channel after the gap: {np.min(width) + h * rf[np.argmin(width)]:.3f} mm)")
+    return X, R, th_l.reshape(nx, nr), th_r.reshape(nx, nr)
+
+
+def _offset_pressure(blisk, x, r, theta, grad, gap):
+    """Pressure wall (blade 1's minus face): offset in blade 0's position, rotated back."""
+    th = _offset_wall(blisk.pressure_face, x, r, theta - blisk.pitch, grad, gap, -1.0)
+    return th + blisk.pitch
+
+
+def _split_sides(design, X, R, th_l, th_r):
+    """{name: (X, R, theta_left, theta_right)} for 'none' and 'left_right' designs."""
+    if design.split == "none":
+        return {"main": (X, R, th_l, th_r)}
+    mid = th_l + design.split_fraction * (th_r - th_l)
+    half = 0.5 * design.split_overlap / R
+    if np.any(mid + half >= th_r) or np.any(mid - half <= th_l):
+        raise GeometryError("electrode.split_overlap: the overlap is wider than a sub-electrode")
+    return {"left": (X, R, th_l, mid + half), "right": (X, R, mid - half, th_r)}

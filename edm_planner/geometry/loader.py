@@ -1,0 +1,274 @@
+"""Load a blisk from its YAML description: validation, file sandbox, content hash.
+
+YAML schema (mm, rad; file paths relative to the YAML's directory)::
+
+    name: "free text"                     # optional
+    blade_count: 60                       # N >= 2
+    hub_profile: [[x, r], ...]            # or {file: F, format: nasa_meridional, length_unit: cm}
+    shroud_profile: [[x, r], ...]         # same forms
+    blade:                                # exactly one of parametric / sections / mesh
+      parametric: {...}                   # see edm_planner.geometry.parametric
+      sections: {file: F, format: nasa_table | csv, length_unit: mm}
+      mesh: {file: F, length_unit: mm, section_count: 25, station_count: 81}
+      knot_rule: chord                    # optional: chord (default) | paper (Liu 2024 eq. 15)
+    electrode: {...}                      # optional, see ElectrodeDesign
+
+A document holding only the blisk keys loads with the default electrode design.
+"""
+
+import hashlib
+import json
+import logging
+import os
+import pathlib
+from dataclasses import dataclass, field
+
+import numpy as np
+import yaml
+
+from ..errors import GeometryError, GeometryFileError
+from .blade_mesh import load_blade_mesh, mesh_to_sections
+from .blisk import Blisk
+from .centerline import channel_centerline
+from .electrode import ElectrodeDesign, design_electrodes
+from .parametric import parse_parametric
+from .profiles import RevolutionProfile
+from .readers import read_nasa_meridional, read_nasa_table, read_sections_csv, unit_scale
+
+_log = logging.getLogger(__name__)
+
+TOP_KEYS = {"name", "blade_count", "hub_profile", "shroud_profile", "blade", "electrode"}
+BLADE_SOURCES = ("parametric", "sections", "mesh")
+#: largest YAML document accepted (inline or file) [bytes]
+MAX_YAML_BYTES = 4 * 1024 * 1024
+
+
+class FileAccess:
+    """Resolves file names against a base directory, inside allowed directories only.
+
+    Parameters
+    ----------
+    base_dir : path
+        Where relative names resolve (the YAML's directory).
+    allowed_dirs : list of path or None
+        Files must resolve (symlinks followed) inside one of these; None allows any.
+    """
+
+    def __init__(self, base_dir, allowed_dirs=None):
+        self.base_dir = pathlib.Path(base_dir)
+        self.allowed = None if allowed_dirs is None else [os.path.realpath(d) for d in allowed_dirs]
+        self.hashes = []        # (name, sha256) of every file read, for the geometry id
+
+    def resolve(self, name, where):
+        if not isinstance(name, str) or not name:
+            raise GeometryError(f"{where}: expected a file name, got {name!r}")
+        path = pathlib.Path(name)
+        if not path.is_absolute():
+            path = self.base_dir / path
+        real = os.path.realpath(path)
+        if self.allowed is not None and not any(
+                os.path.commonpath([real, a]) == a for a in self.allowed):
+            raise GeometryFileError(
+                f"{where}: {name} resolves to {real}, outside the allowed directories {self.allowed}")
+        if not os.path.isfile(real):
+            raise GeometryFileError(f"{where}: file not found: {path}")
+        with open(real, "rb") as f:
+            self.hashes.append((str(name), hashlib.sha256(f.read()).hexdigest()))
+        return pathlib.Path(real)
+
+
+@dataclass(eq=False)
+class LoadedGeometry:
+    """A validated blisk with its designed electrodes and its content hash."""
+
+    geometry_id: str
+    blisk: Blisk
+    design: ElectrodeDesign
+    electrodes: list
+    source: str = ""
+    _summary: dict = field(default=None, repr=False)
+
+    def electrode(self, electrode_id=""):
+        """The electrode with this id ('' for the first)."""
+        if not electrode_id:
+            return self.electrodes[0]
+        for e in self.electrodes:
+            if e.electrode_id == electrode_id:
+                return e
+        raise KeyError(electrode_id)
+
+    def summary(self):
+        """Figures of the geometry (the fields of GeometrySummary.msg)."""
+        if self._summary is None:
+            b = self.blisk
+            x0, x1 = b.axial_range
+            xs = np.linspace(x0, x1, 200)
+            cl = channel_centerline(b)
+            thick = (b.blade.theta_plus - b.blade.theta_minus) * b.blade.r
+            meshes = b.channel_meshes()
+            self._summary = {
+                "geometry_id": self.geometry_id, "name": b.name, "blade_source": b.source,
+                "blade_count": b.blade_count, "channel_count": b.blade_count,
+                "blade_pitch": b.pitch, "axial_min": x0, "axial_max": x1,
+                "hub_radius_min": float(b.hub.radius_at(xs).min()),
+                "hub_radius_max": float(b.hub.radius_at(xs).max()),
+                "shroud_radius_min": float(b.shroud.radius_at(xs).min()),
+                "shroud_radius_max": float(b.shroud.radius_at(xs).max()),
+                "min_channel_width": cl.min_width, "max_blade_thickness": float(thick.max()),
+                "centerline_length": cl.length, "centerline_sweep": cl.sweep,
+                "electrode_count": len(self.electrodes),
+                "electrode_extent": [float(v) for e in self.electrodes for v in e.mesh.extents],
+                "electrode_volume": [float(e.mesh.volume) for e in self.electrodes],
+                "blade_mesh_vertices": len(b.blade_mesh.vertices),
+                "blade_mesh_triangles": len(b.blade_mesh.faces),
+                "channel_mesh_triangles": int(sum(len(m.faces) for m in meshes.values())),
+                "electrode_mesh_triangles": int(sum(len(e.mesh.faces) for e in self.electrodes)),
+            }
+        return dict(self._summary)
+
+
+def _profile(spec, name, files):
+    if isinstance(spec, dict):
+        _known(spec, {"file", "format", "length_unit"}, name)
+        fmt = spec.get("format", "nasa_meridional")
+        if fmt != "nasa_meridional":
+            raise GeometryError(f"{name}.format: only 'nasa_meridional' files are read, got {fmt!r}")
+        path = files.resolve(spec.get("file"), f"{name}.file")
+        pts = read_nasa_meridional(path, name.split("_")[0], spec.get("length_unit", "cm"))
+        return RevolutionProfile(pts, name)
+    if not isinstance(spec, list):
+        raise GeometryError(f"{name}: expected a list of [x, r] pairs in mm or a {{file: ...}} mapping")
+    try:
+        pts = np.asarray(spec, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise GeometryError(f"{name}: expected a list of [x, r] pairs of numbers in mm") from None
+    return RevolutionProfile(pts, name)
+
+
+def _known(spec, allowed, where):
+    unknown = sorted(set(spec) - set(allowed))
+    if unknown:
+        raise GeometryError(f"{where}: unknown key(s) {unknown}; known: {sorted(allowed)}")
+
+
+def _blade(spec, hub, shroud, files):
+    if not isinstance(spec, dict):
+        raise GeometryError("blade: expected a mapping with exactly one of parametric, sections, mesh")
+    _known(spec, set(BLADE_SOURCES) | {"knot_rule"}, "blade")
+    given = [k for k in BLADE_SOURCES if k in spec]
+    if len(given) != 1:
+        raise GeometryError(f"blade: give exactly one of {list(BLADE_SOURCES)}, got {given or 'none'}")
+    source = given[0]
+    sub = spec[source]
+    if source == "parametric":
+        return parse_parametric(sub, hub, shroud), source
+    if not isinstance(sub, dict):
+        raise GeometryError(f"blade.{source}: expected a mapping with a 'file' key")
+    if source == "sections":
+        _known(sub, {"file", "format", "length_unit"}, "blade.sections")
+        path = files.resolve(sub.get("file"), "blade.sections.file")
+        fmt = sub.get("format", "csv")
+        if fmt == "nasa_table":
+            return read_nasa_table(path, sub.get("length_unit", "cm")), source
+        if fmt == "csv":
+            return read_sections_csv(path, sub.get("length_unit", "mm")), source
+        raise GeometryError(f"blade.sections.format: must be 'nasa_table' or 'csv', got {fmt!r}")
+    _known(sub, {"file", "length_unit", "section_count", "station_count"}, "blade.mesh")
+    path = files.resolve(sub.get("file"), "blade.mesh.file")
+    mesh = load_blade_mesh(path)
+    scale = unit_scale(sub.get("length_unit", "mm"), "blade.mesh")
+    if scale != 1.0:
+        mesh.apply_scale(scale)
+    counts = {}
+    for key, default, lo in (("section_count", 25, 4), ("station_count", 81, 8)):
+        v = sub.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int) or v < lo or v > 1000:
+            raise GeometryError(f"blade.mesh.{key}: must be an integer in {lo} .. 1000, got {v!r}")
+        counts[key] = v
+    return mesh_to_sections(mesh, counts["section_count"], counts["station_count"]), source
+
+
+def parse_document(text, where="geometry"):
+    """YAML text -> mapping, with errors that name the line."""
+    if len(text.encode("utf-8", "replace")) > MAX_YAML_BYTES:
+        raise GeometryFileError(f"{where}: YAML larger than {MAX_YAML_BYTES} bytes")
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        raise GeometryFileError(f"{where}: malformed YAML{at}: {getattr(exc, 'problem', exc)}") from None
+    if not isinstance(doc, dict):
+        raise GeometryError(f"{where}: the YAML document must be a mapping of geometry keys")
+    return doc
+
+
+def build_geometry(doc, files, source=""):
+    """Validated :class:`LoadedGeometry` from a parsed document."""
+    _known(doc, TOP_KEYS, "geometry")
+    for key in ("blade_count", "hub_profile", "shroud_profile", "blade"):
+        if key not in doc:
+            raise GeometryError(f"geometry: missing required key '{key}'")
+    hub = _profile(doc["hub_profile"], "hub_profile", files)
+    shroud = _profile(doc["shroud_profile"], "shroud_profile", files)
+    blade, blade_source = _blade(doc["blade"], hub, shroud, files)
+    knot_rule = doc["blade"].get("knot_rule", "chord")
+    if knot_rule not in ("chord", "paper"):
+        raise GeometryError(f"blade.knot_rule: must be 'chord' or 'paper', got {knot_rule!r}")
+    name = doc.get("name", "")
+    if not isinstance(name, str):
+        raise GeometryError("name: must be a string")
+    blisk = Blisk(doc["blade_count"], hub, shroud, blade, name=name, source=blade_source, knot_rule=knot_rule)
+    design = ElectrodeDesign.from_dict(doc.get("electrode"))
+    electrodes = design_electrodes(blisk, design)
+    digest = hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode())
+    for fname, h in files.hashes:
+        digest.update(f"\0{fname}\0{h}".encode())
+    return LoadedGeometry(digest.hexdigest(), blisk, design, electrodes, source)
+
+
+def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None):
+    """Load a blisk geometry from a YAML file or inline YAML text.
+
+    Parameters
+    ----------
+    path : path, optional
+        The YAML file.
+    text : str, optional
+        Inline YAML (exactly one of path and text).
+    allowed_dirs : list of path, optional
+        Directories files may be read from (the YAML and every file it names);
+        None allows any.
+    base_dir : path, optional
+        Where relative names in inline YAML resolve (default: the first allowed
+        directory, else the working directory).
+
+    Returns
+    -------
+    LoadedGeometry
+
+    Raises
+    ------
+    GeometryFileError, GeometryError
+    """
+    if (path is None) == (text is None):
+        raise GeometryError("load_geometry: give exactly one of a path and inline YAML text")
+    if path is not None:
+        files = FileAccess(pathlib.Path.cwd(), allowed_dirs)
+        real = files.resolve(str(path), "geometry file")
+        files.hashes.clear()      # the YAML's own bytes enter the id through the parsed document
+        try:
+            text = real.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise GeometryFileError(f"{path}: cannot read ({exc})") from None
+        files.base_dir = real.parent
+        where = str(path)
+    else:
+        base = base_dir or (allowed_dirs[0] if allowed_dirs else pathlib.Path.cwd())
+        files = FileAccess(base, allowed_dirs)
+        where = "inline YAML"
+    doc = parse_document(text, where)
+    geometry = build_geometry(doc, files, source=where)
+    _log.info("loaded %s: %d blades, %s blade, id %s", where, geometry.blisk.blade_count,
+              geometry.blisk.source, geometry.geometry_id[:12])
+    return geometry
