@@ -10,6 +10,7 @@ import pytest
 # other test runs (a domain from the process id, unless the caller set one).
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
+os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 REPO = pathlib.Path(__file__).resolve().parent.parent

@@ -1,0 +1,84 @@
+"""Message <-> numpy/trimesh conversions, the one place nodes translate types.
+
+Coordinates stay in millimetres in every message (geometry_msgs positions
+included, as the message definitions state); RViz markers get a 0.001 scale.
+"""
+
+import numpy as np
+import trimesh
+from edm_planner_msgs.msg import ErrorCode, GeometrySummary
+from geometry_msgs.msg import Point, Pose
+from scipy.spatial.transform import Rotation
+from shape_msgs.msg import Mesh, MeshTriangle
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker
+
+from ..errors import ErrorCode as CoreErrorCode
+
+
+def error_code(code):
+    """ErrorCode message from the core enum (same values, checked by a test)."""
+    return ErrorCode(val=int(CoreErrorCode(code)))
+
+
+def mesh_to_msg(mesh):
+    """trimesh -> shape_msgs/Mesh (mm)."""
+    msg = Mesh()
+    msg.vertices = [Point(x=float(v[0]), y=float(v[1]), z=float(v[2])) for v in mesh.vertices]
+    msg.triangles = [MeshTriangle(vertex_indices=[int(i) for i in f]) for f in mesh.faces]
+    return msg
+
+
+def msg_to_mesh(msg):
+    """shape_msgs/Mesh -> trimesh (mm), vertices kept as given."""
+    vertices = np.array([[p.x, p.y, p.z] for p in msg.vertices], dtype=np.float64).reshape(-1, 3)
+    faces = np.array([t.vertex_indices for t in msg.triangles], dtype=np.int64).reshape(-1, 3)
+    return trimesh.Trimesh(vertices, faces, process=False)
+
+
+def matrix_to_pose(matrix):
+    """4x4 homogeneous transform -> geometry_msgs/Pose (position in mm)."""
+    m = np.asanyarray(matrix, dtype=np.float64)
+    qx, qy, qz, qw = Rotation.from_matrix(m[:3, :3]).as_quat()
+    pose = Pose()
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in m[:3, 3])
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (
+        float(qx), float(qy), float(qz), float(qw))
+    return pose
+
+
+def pose_to_matrix(pose):
+    """geometry_msgs/Pose (position in mm) -> 4x4 transform."""
+    q = pose.orientation
+    m = np.eye(4)
+    m[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    m[:3, 3] = [pose.position.x, pose.position.y, pose.position.z]
+    return m
+
+
+def summary_to_msg(summary):
+    """Core summary dict -> GeometrySummary."""
+    msg = GeometrySummary()
+    for key, value in summary.items():
+        setattr(msg, key, value)
+    return msg
+
+
+def mesh_marker(mesh, ns, marker_id, frame_id, stamp, rgba, pose=None):
+    """A TRIANGLE_LIST marker of a mesh in mm, scaled 0.001 for RViz's metres."""
+    m = Marker()
+    m.header.frame_id = frame_id
+    m.header.stamp = stamp
+    m.ns, m.id, m.type, m.action = ns, marker_id, Marker.TRIANGLE_LIST, Marker.ADD
+    if pose is not None:
+        m.pose = matrix_to_pose(pose)
+        m.pose.position.x *= 1e-3
+        m.pose.position.y *= 1e-3
+        m.pose.position.z *= 1e-3
+    else:
+        m.pose.orientation.w = 1.0
+    m.scale.x = m.scale.y = m.scale.z = 1e-3
+    m.color = ColorRGBA(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
+    tri = mesh.vertices[mesh.faces.reshape(-1)]
+    m.points = [Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in tri]
+    return m

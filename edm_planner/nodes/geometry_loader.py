@@ -1,0 +1,186 @@
+"""geometry_loader node: loads blisk geometries and publishes them for the other nodes.
+
+Parameters
+----------
+geometry_file : str
+    YAML loaded at start (default: the built-in blisk, share/edm_planner/config/default_blisk.yaml);
+    empty: load nothing at start.
+allowed_directories : str[]
+    Directories LoadGeometry may read from (the YAML and every file it names,
+    symlinks resolved); default: the package's config directory.
+frame_id : str
+    Frame of the published geometry (the workpiece frame W, X = blisk axis).
+mesh_resolution : float
+    Edge length [mm] of the published channel surface meshes (viewers only;
+    nodes rebuild the exact model from model_json).
+
+Services: ``load_geometry`` (edm_planner_msgs/LoadGeometry).
+Topics (TRANSIENT_LOCAL, depth 1): ``geometry`` (edm_planner_msgs/BliskGeometry),
+``geometry_markers`` (visualization_msgs/MarkerArray).
+"""
+
+import json
+import logging
+import os
+import pathlib
+import threading
+
+import rclpy
+from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+from edm_planner_msgs.msg import BliskGeometry
+from edm_planner_msgs.srv import LoadGeometry
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from visualization_msgs.msg import MarkerArray
+
+from ..errors import EdmError, ErrorCode
+from ..geometry.blisk import CHANNEL_SURFACES
+from ..geometry.loader import load_geometry
+from .conversions import error_code, matrix_to_pose, mesh_marker, mesh_to_msg, summary_to_msg
+
+#: QoS of data that late joiners need (like tf_static)
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                     reliability=ReliabilityPolicy.RELIABLE)
+COLOURS = {"suction": (0.2, 0.4, 0.9, 0.6), "pressure": (0.9, 0.3, 0.2, 0.6),
+           "hub": (0.5, 0.5, 0.5, 0.5), "shroud": (0.6, 0.6, 0.3, 0.3)}
+
+
+def config_directory():
+    """The installed config directory (share/edm_planner/config), or the source tree's."""
+    try:
+        return pathlib.Path(get_package_share_directory("edm_planner")) / "config"
+    except (PackageNotFoundError, ValueError, KeyError, OSError):
+        return pathlib.Path(__file__).resolve().parents[2] / "config"
+
+
+class GeometryLoaderNode(Node):
+    """Loads blisk geometries (LoadGeometry) and publishes the current one."""
+
+    def __init__(self, **kwargs):
+        super().__init__("geometry_loader", **kwargs)
+        config = config_directory()
+        self.declare_parameter("geometry_file", str(config / "default_blisk.yaml"),
+                               ParameterDescriptor(description="YAML loaded at start; empty: none"))
+        self.declare_parameter("allowed_directories", [str(config)],
+                               ParameterDescriptor(description="directories LoadGeometry may read from"))
+        self.declare_parameter("frame_id", "workpiece")
+        self.declare_parameter("mesh_resolution", 1.0,
+                               ParameterDescriptor(description="published surface mesh edge length [mm]"))
+        self.add_on_set_parameters_callback(self._check_parameters)
+        self.geometries = {}
+        self._lock = threading.Lock()
+        self.geometry_pub = self.create_publisher(BliskGeometry, "geometry", LATCHED)
+        self.marker_pub = self.create_publisher(MarkerArray, "geometry_markers", LATCHED)
+        self.load_service = self.create_service(
+            LoadGeometry, "load_geometry", self.on_load_geometry,
+            callback_group=MutuallyExclusiveCallbackGroup())
+        start = self.get_parameter("geometry_file").value
+        if start:
+            # the operator's own configuration: not subject to the request sandbox
+            response = self.load(path=start, sandboxed=False)
+            if not response.success:
+                self.get_logger().error(f"start geometry not loaded: {response.message}")
+
+    @staticmethod
+    def _check_parameters(params):
+        for p in params:
+            if p.name == "allowed_directories":
+                missing = [d for d in p.value if not os.path.isdir(d)]
+                if missing:
+                    return SetParametersResult(successful=False, reason=f"not directories: {missing}")
+            if p.name == "mesh_resolution" and not 0.05 <= p.value <= 10.0:
+                return SetParametersResult(successful=False, reason="mesh_resolution must be 0.05 .. 10 mm")
+        return SetParametersResult(successful=True)
+
+    @property
+    def allowed_directories(self):
+        return list(self.get_parameter("allowed_directories").value)
+
+    def on_load_geometry(self, request, response):
+        path, text = request.path.strip(), request.yaml_text
+        if bool(path) == bool(text.strip()):
+            return self._fail(response, ErrorCode.INVALID_REQUEST,
+                              "give exactly one of 'path' and 'yaml_text'")
+        return self.load(path=path or None, text=text if not path else None, response=response)
+
+    def load(self, path=None, text=None, response=None, sandboxed=True):
+        """Load, remember and publish a geometry; fills a LoadGeometry response."""
+        response = response or LoadGeometry.Response()
+        allowed = self.allowed_directories
+        if path is not None and not os.path.isabs(path):
+            path = os.path.join(allowed[0], path) if allowed else path
+        try:
+            geometry = load_geometry(path=path, text=text, allowed_dirs=allowed if sandboxed else None)
+            summary = geometry.summary()
+        except EdmError as exc:
+            return self._fail(response, exc.code, exc.message)
+        except Exception as exc:  # a bug: report it, keep the node up
+            self.get_logger().error(f"internal error loading geometry: {exc!r}")
+            logging.getLogger(__name__).exception("internal error")
+            return self._fail(response, ErrorCode.INTERNAL, f"internal error: {exc!r}")
+        with self._lock:
+            self.geometries[geometry.geometry_id] = geometry
+        self.publish(geometry)
+        response.success = True
+        response.error_code = error_code(ErrorCode.SUCCESS)
+        response.geometry_id = geometry.geometry_id
+        response.summary = summary_to_msg(summary)
+        response.message = (f"loaded {geometry.source}: {summary['blade_count']} blades "
+                            f"({summary['blade_source']}), {summary['electrode_count']} electrode(s)")
+        self.get_logger().info(f"{response.message}, id {geometry.geometry_id[:12]}")
+        return response
+
+    def _fail(self, response, code, message):
+        response.success = False
+        response.error_code = error_code(code)
+        response.message = message
+        self.get_logger().warning(f"LoadGeometry failed ({ErrorCode(code).name}): {message}")
+        return response
+
+    def publish(self, geometry):
+        """Publish the geometry and its markers on the latched topics."""
+        frame = self.get_parameter("frame_id").value
+        stamp = self.get_clock().now().to_msg()
+        meshes = geometry.blisk.channel_meshes(resolution=self.get_parameter("mesh_resolution").value)
+        msg = BliskGeometry()
+        msg.header.frame_id = frame
+        msg.header.stamp = stamp
+        msg.summary = summary_to_msg(geometry.summary())
+        model = geometry.blisk.to_dict()
+        model["geometry_id"] = geometry.geometry_id
+        model["electrode_design"] = geometry.design.to_dict()
+        msg.model_json = json.dumps(model)
+        msg.surface_labels = list(CHANNEL_SURFACES)
+        msg.surfaces = [mesh_to_msg(meshes[label]) for label in CHANNEL_SURFACES]
+        msg.electrode_ids = [e.electrode_id for e in geometry.electrodes]
+        msg.electrodes = [mesh_to_msg(e.mesh) for e in geometry.electrodes]
+        msg.electrode_final_poses = [matrix_to_pose(e.final_pose) for e in geometry.electrodes]
+        self.geometry_pub.publish(msg)
+        markers = MarkerArray()
+        for i, label in enumerate(CHANNEL_SURFACES):
+            markers.markers.append(mesh_marker(meshes[label], "channel", i, frame, stamp, COLOURS[label]))
+        for i, e in enumerate(geometry.electrodes):
+            markers.markers.append(mesh_marker(e.mesh, "electrode", i, frame, stamp, (0.85, 0.5, 0.2, 0.9),
+                                               pose=e.final_pose))
+        self.marker_pub.publish(markers)
+
+
+def main(args=None):
+    """Console entry point ``geometry_loader``."""
+    logging.basicConfig(level=logging.INFO, format="[%(name)s] %(levelname)s: %(message)s")
+    rclpy.init(args=args)
+    node = GeometryLoaderNode()
+    executor = MultiThreadedExecutor()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

@@ -1,0 +1,133 @@
+"""geometry_loader over real DDS: in-process on a private context, and as a process."""
+
+import json
+import os
+import shutil
+import sys
+import threading
+
+import pytest
+from edm_planner_msgs.msg import BliskGeometry, ErrorCode
+from edm_planner_msgs.srv import LoadGeometry
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from visualization_msgs.msg import MarkerArray
+
+from conftest import CONFIG
+from edm_planner.errors import ErrorCode as CoreErrorCode
+from edm_planner.geometry.blisk import Blisk
+from edm_planner.nodes.conversions import msg_to_mesh, pose_to_matrix
+from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode
+
+
+def test_error_codes_mirror_the_message_constants():
+    consts = {name: getattr(ErrorCode, name) for name in dir(ErrorCode)
+              if name.isupper() and isinstance(getattr(ErrorCode, name), int)}
+    assert consts == {c.name: c.value for c in CoreErrorCode}
+
+
+@pytest.fixture
+def loader(ros, tmp_path):
+    node = ros.add(GeometryLoaderNode(context=ros.context, parameter_overrides=[
+        Parameter("allowed_directories", value=[str(CONFIG), str(tmp_path)])]))
+    client = ros.add(Node("test_client", context=ros.context))
+    return node, client
+
+
+def _load(ros, client, **fields):
+    return ros.call(client, LoadGeometry, "load_geometry", LoadGeometry.Request(**fields), timeout=60)
+
+
+def test_late_joiner_receives_the_default_geometry_and_rebuilds_the_model(ros, loader):
+    node, client = loader
+    got, markers = [], []
+    done = threading.Event()
+    client.create_subscription(BliskGeometry, "geometry", lambda m: (got.append(m), done.set()), LATCHED)
+    client.create_subscription(MarkerArray, "geometry_markers", markers.append, LATCHED)
+    assert done.wait(30), "no geometry received on the TRANSIENT_LOCAL topic"
+    msg = got[0]
+    assert msg.header.frame_id == "workpiece"
+    assert msg.summary.blade_count == 60 and msg.summary.blade_source == "parametric"
+    assert 95 < msg.summary.hub_radius_min < 105 and 115 < msg.summary.shroud_radius_max < 125
+    model = json.loads(msg.model_json)
+    blisk = Blisk.from_dict(model)
+    assert model["geometry_id"] == msg.summary.geometry_id
+    assert list(msg.surface_labels) == ["suction", "pressure", "hub", "shroud"]
+    assert all(len(m.triangles) > 100 for m in msg.surfaces)
+    electrode = msg_to_mesh(msg.electrodes[0])
+    assert electrode.is_watertight and electrode.volume > 1000          # mm^3
+    pose = pose_to_matrix(msg.electrode_final_poses[0])
+    assert 100 < (pose[1, 3] ** 2 + pose[2, 3] ** 2) ** 0.5 < 120       # electrode centre inside the channel
+    assert blisk.blade_count == 60
+    deadline = threading.Event()
+    deadline.wait(2.0)
+    assert markers and len(markers[0].markers) == 5
+
+
+@pytest.mark.parametrize("name, blades, source", [
+    ("default_blisk.yaml", 60, "parametric"),
+    ("rotor37.yaml", 36, "sections"),
+    ("mesh_blisk.yaml", 60, "mesh"),
+])
+def test_load_each_blade_source(ros, loader, name, blades, source):
+    _, client = loader
+    res = _load(ros, client, path=name)
+    assert res.success, res.message
+    assert res.error_code.val == ErrorCode.SUCCESS
+    assert res.summary.blade_count == blades and res.summary.blade_source == source
+    assert len(res.geometry_id) == 64 and res.summary.geometry_id == res.geometry_id
+    assert res.summary.min_channel_width > 3.0
+    assert res.summary.electrode_count == 1 and res.summary.electrode_volume[0] > 0
+
+
+def test_inline_yaml_and_same_content_same_id(ros, loader):
+    _, client = loader
+    by_path = _load(ros, client, path=str(CONFIG / "default_blisk.yaml"))
+    inline = _load(ros, client, yaml_text=(CONFIG / "default_blisk.yaml").read_text())
+    assert by_path.success and inline.success
+    assert by_path.geometry_id == inline.geometry_id
+
+
+@pytest.mark.parametrize("fields, code, words", [
+    ({}, ErrorCode.INVALID_REQUEST, "exactly one"),
+    ({"path": "x.yaml", "yaml_text": "blade_count: 2"}, ErrorCode.INVALID_REQUEST, "exactly one"),
+    ({"path": "no_such_file.yaml"}, ErrorCode.FILE_ERROR, "not found"),
+    ({"path": "/etc/hostname"}, ErrorCode.FILE_ERROR, "outside the allowed"),
+    ({"path": "../../../etc/passwd"}, ErrorCode.FILE_ERROR, "outside the allowed"),
+    ({"yaml_text": "blade_count: [1, 2\nhub: {"}, ErrorCode.FILE_ERROR, "malformed YAML at line"),
+    ({"yaml_text": "blade_count: 1\nhub_profile: [[0, 100], [10, 100]]\n"
+                   "shroud_profile: [[0, 120], [10, 120]]\nblade: {parametric: {}}"},
+     ErrorCode.INVALID_GEOMETRY, "blade"),
+])
+def test_bad_requests_get_clear_errors(ros, loader, fields, code, words):
+    _, client = loader
+    res = _load(ros, client, **fields)
+    assert not res.success
+    assert res.error_code.val == code, res.message
+    assert words in res.message
+
+
+def test_symlink_out_of_the_allowed_directory_is_refused(ros, loader, tmp_path):
+    _, client = loader
+    outside = tmp_path.parent / f"outside_{os.getpid()}.yaml"
+    shutil.copy(CONFIG / "default_blisk.yaml", outside)
+    (tmp_path / "link.yaml").symlink_to(outside)
+    res = _load(ros, client, path=str(tmp_path / "link.yaml"))
+    assert res.error_code.val == ErrorCode.FILE_ERROR and "outside the allowed" in res.message
+    # a copy inside the allowed directory loads
+    shutil.copy(CONFIG / "default_blisk.yaml", tmp_path / "inside.yaml")
+    assert _load(ros, client, path=str(tmp_path / "inside.yaml")).success
+
+
+def test_geometry_loader_process_answers_over_dds(ros, node_processes):
+    """The console entry point as its own OS process, called from this process."""
+    exe = os.path.join(sys.prefix, "lib", "edm_planner", "geometry_loader")
+    assert os.access(exe, os.X_OK), "ament layout executable missing"
+    node_processes.start("geometry_loader")
+    client = ros.add(Node("process_client", context=ros.context))
+    for name, blades in (("default_blisk.yaml", 60), ("mesh_blisk.yaml", 60), ("rotor37.yaml", 36)):
+        res = _load(ros, client, path=name)
+        assert res.success, f"{res.message}\n{node_processes.log('geometry_loader')}"
+        assert res.summary.blade_count == blades
+    rc = node_processes.stop()
+    assert rc["geometry_loader"] in (0, -2), node_processes.log("geometry_loader")
