@@ -1,5 +1,6 @@
 """ament_python package edm_planner (works with colcon and with plain pip)."""
 
+import os
 from glob import glob
 
 from setuptools import find_packages, setup
@@ -19,8 +20,10 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml"))),
-        (f"share/{PACKAGE}/config/rotor37", sorted(glob("config/rotor37/*"))),
+    ] + [
+        # config/ and its data sub-directories, as they are
+        (f"share/{PACKAGE}/{d}", sorted(f for f in glob(f"{d}/*") if os.path.isfile(f)))
+        for d in sorted({os.path.dirname(f) for f in glob("config/**/*", recursive=True)} | {"config"})
     ],
     include_package_data=True,
     install_requires=["setuptools"],
