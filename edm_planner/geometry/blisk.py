@@ -35,37 +35,69 @@ def extend_to_walls(sections, hub, shroud, overlap):
 
     Measured blades end exactly on the hub and shroud lines (Rotor 37's
     sections 1 and 13 are the intersections), so interpolation noise could
-    open a sliver between blade and wall. The blade is continued linearly
-    (per station, along the first/last section step) until it reaches
-    ``overlap`` mm into each wall; a blade that already does is returned as is.
+    open a sliver between blade and wall. The blade gets one more section at
+    each short end, continued linearly along the last section step by the
+    same fraction at every station (so no station repeats a point), the
+    fraction grown until every station reaches ``overlap`` mm into the wall
+    at its own, shifted x. A blade that already reaches is returned as is,
+    so extending twice changes nothing.
 
     Returns
     -------
     BladeSections
     """
-    arrays = [sections.x, sections.r, sections.theta_minus, sections.theta_plus]
-    stacked = np.stack(arrays)                      # (4, S, C)
+    stacked = np.stack([sections.x, sections.r, sections.theta_minus, sections.theta_plus])  # (4, S, C)
+
+    def reach(end, inner, wall_r, sign):
+        """One extra section beyond ``end`` (None if none is needed); sign -1: hub, +1: shroud."""
+        dr = np.maximum(np.abs(end[1] - inner[1]), 1e-9)
+        t = 0.0
+        for _ in range(20):
+            cand = end + t * (end - inner)
+            short = sign * (wall_r(cand[0]) + sign * overlap - cand[1])
+            if np.all(short <= 1e-12):
+                break
+            t += 1.05 * float(np.max(short / dr)) + 1e-6
+        if t == 0.0:
+            return None
+        cand[3] = np.maximum(cand[3], cand[2])    # a zero-thickness edge must not cross
+        return cand
+
     out = stacked
-    # hub side: radius must reach hub(x) - overlap
-    first, second = stacked[:, 0], stacked[:, 1]
-    short = first[1] - (hub.radius_at(first[0]) - overlap)
-    if np.any(short > 0):
-        dr = np.maximum(second[1] - first[1], 1e-9)
-        t = np.maximum(short, 0) / dr
-        extra = first - t * (second - first)
+    extra = reach(out[:, 0], out[:, 1], hub.radius_at, -1.0)
+    if extra is not None:
         out = np.concatenate([extra[:, None], out], axis=1)
-    last, before = out[:, -1], out[:, -2]
-    short = (shroud.radius_at(last[0]) + overlap) - last[1]
-    if np.any(short > 0):
-        dr = np.maximum(last[1] - before[1], 1e-9)
-        t = np.maximum(short, 0) / dr
-        extra = last + t * (last - before)
+    extra = reach(out[:, -1], out[:, -2], shroud.radius_at, +1.0)
+    if extra is not None:
         out = np.concatenate([out, extra[:, None]], axis=1)
     if out is stacked:
         return sections
-    # a zero-thickness edge extrapolates to a hair's crossing: keep thickness >= 0
-    out[3] = np.maximum(out[3], out[2])
     return BladeSections(*out)
+
+
+def validate_profiles(hub, shroud):
+    """Plausibility of the hub and shroud profiles: units, and hub below shroud."""
+    hub_r = hub.points[:, 1]
+    if hub_r.min() < SIZE.min_radius:
+        raise GeometryError(
+            f"hub_profile: radius {hub_r.min():g} mm is implausibly small for a blisk; "
+            "are the values in metres? All lengths are millimetres")
+    if shroud.points[:, 1].max() > SIZE.max_radius:
+        raise GeometryError(
+            f"shroud_profile: radius {shroud.points[:, 1].max():g} mm is implausibly large; "
+            "are the values in micrometres or another unit? All lengths are millimetres")
+    lo = max(hub.x_range[0], shroud.x_range[0])
+    hi = min(hub.x_range[1], shroud.x_range[1])
+    if hi <= lo:
+        raise GeometryError("hub_profile and shroud_profile do not overlap in x")
+    xs = np.linspace(lo, hi, 400)
+    height = shroud.radius_at(xs) - hub.radius_at(xs)
+    if height.min() < SIZE.min_channel_height:
+        i = int(np.argmin(height))
+        raise GeometryError(
+            f"hub_profile is not below shroud_profile: at x = {xs[i]:.3f} mm the hub radius "
+            f"{hub.radius_at(xs[i]):.3f} mm is not at least {SIZE.min_channel_height} mm below "
+            f"the shroud radius {shroud.radius_at(xs[i]):.3f} mm")
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,35 +133,12 @@ class Blisk:
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
             raise GeometryError(f"blade_count: must be an integer >= 2, got {n!r}")
         object.__setattr__(self, "blade_count", int(n))
-        self._validate_profiles()
+        validate_profiles(self.hub, self.shroud)
         height = self.channel_height_range[0]
         object.__setattr__(self, "blade", extend_to_walls(self.blade, self.hub, self.shroud, 0.02 * height))
         self._validate_blade()
 
     # -- validation -----------------------------------------------------------
-    def _validate_profiles(self):
-        hub_r = self.hub.points[:, 1]
-        if hub_r.min() < SIZE.min_radius:
-            raise GeometryError(
-                f"hub_profile: radius {hub_r.min():g} mm is implausibly small for a blisk; "
-                "are the values in metres? All lengths are millimetres")
-        if self.shroud.points[:, 1].max() > SIZE.max_radius:
-            raise GeometryError(
-                f"shroud_profile: radius {self.shroud.points[:, 1].max():g} mm is implausibly large; "
-                "are the values in micrometres or another unit? All lengths are millimetres")
-        lo = max(self.hub.x_range[0], self.shroud.x_range[0])
-        hi = min(self.hub.x_range[1], self.shroud.x_range[1])
-        if hi <= lo:
-            raise GeometryError("hub_profile and shroud_profile do not overlap in x")
-        xs = np.linspace(lo, hi, 400)
-        height = self.shroud.radius_at(xs) - self.hub.radius_at(xs)
-        if height.min() < SIZE.min_channel_height:
-            i = int(np.argmin(height))
-            raise GeometryError(
-                f"hub_profile is not below shroud_profile: at x = {xs[i]:.3f} mm the hub radius "
-                f"{self.hub.radius_at(xs[i]):.3f} mm is not at least {SIZE.min_channel_height} mm below "
-                f"the shroud radius {self.shroud.radius_at(xs[i]):.3f} mm")
-
     def _validate_blade(self):
         b = self.blade
         lo = max(self.hub.x_range[0], self.shroud.x_range[0])

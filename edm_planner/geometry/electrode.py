@@ -145,20 +145,30 @@ class Electrode:
         return rotation_about_x(channel * pitch) @ self.final_pose
 
 
-def _offset_wall(face, x, r, theta, grad, gap, sign, iterations=4):
+def _offset_wall(face, x, r, theta, grad, gap, sign, iterations=12):
     """Angles at (x, r) whose exact distance to a blade face is ``gap``.
 
     Starts from the first-order offset of the surface theta = f(x, r):
-    d(theta) = gap * |grad F|, |grad F| = sqrt(f_x^2 + f_r^2 + 1/r^2), and
-    corrects it with the measured distance (secant on the ratio).
+    d(theta) = gap * |grad F|, |grad F| = sqrt(f_x^2 + f_r^2 + 1/r^2), then
+    solves distance(delta) = gap per vertex by the secant method on the exact
+    distance to the reconstructed face (where the closest point is on the
+    face's edge the relation is far from linear, hence the iterations).
     """
-    delta = gap * np.sqrt(grad[:, 0] ** 2 + grad[:, 1] ** 2 + 1.0 / r**2)
+    def distance(delta):
+        return face.closest_points(cylindrical_to_cartesian(x, r, theta + sign * delta))[1]
+
+    d0 = gap * np.sqrt(grad[:, 0] ** 2 + grad[:, 1] ** 2 + 1.0 / r**2)
+    f0 = distance(d0) - gap
+    d1 = d0 * gap / np.maximum(f0 + gap, 1e-12)
     for _ in range(iterations):
-        q = cylindrical_to_cartesian(x, r, theta + sign * delta)
-        d = face.closest_points(q)[1]
-        ok = d > 1e-12
-        delta = np.where(ok, delta * gap / np.where(ok, d, 1.0), delta)
-    return theta + sign * delta
+        f1 = distance(d1) - gap
+        if np.abs(f1).max() < 1e-10:
+            break
+        slope = (f1 - f0) / np.where(np.abs(d1 - d0) > 1e-15, d1 - d0, 1e-15)
+        slope = np.where(slope > 1e-6, slope, (f1 + gap) / np.maximum(d1, 1e-15))  # fall back to the ratio
+        d0, f0 = d1, f1
+        d1 = np.maximum(d1 - f1 / slope, 0.0)
+    return theta + sign * d1
 
 
 def _box_mesh(lattice):

@@ -28,7 +28,7 @@ import yaml
 
 from ..errors import GeometryError, GeometryFileError
 from .blade_mesh import load_blade_mesh, mesh_to_sections
-from .blisk import Blisk
+from .blisk import Blisk, validate_profiles
 from .centerline import channel_centerline
 from .electrode import ElectrodeDesign, design_electrodes
 from .parametric import parse_parametric
@@ -211,6 +211,7 @@ def build_geometry(doc, files, source=""):
             raise GeometryError(f"geometry: missing required key '{key}'")
     hub = _profile(doc["hub_profile"], "hub_profile", files)
     shroud = _profile(doc["shroud_profile"], "shroud_profile", files)
+    validate_profiles(hub, shroud)      # units first: a blade in metres fails confusingly otherwise
     blade, blade_source = _blade(doc["blade"], hub, shroud, files)
     knot_rule = doc["blade"].get("knot_rule", "chord")
     if knot_rule not in ("chord", "paper"):
