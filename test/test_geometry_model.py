@@ -413,8 +413,9 @@ def test_radial_reduction_lowers_the_shroud_side(default, base_electrode):
         # each axial station of the upper/lower face has one radius
         xb, idx = np.unique(np.round(before[:, 0], 9), return_index=True)
         xn, idn = np.unique(np.round(now[:, 0], 9), return_index=True)
-        np.testing.assert_array_equal(xb, xn)
-        np.testing.assert_allclose(radius_of(now[idn]), radius_of(before[idx]) - drop, atol=1e-9)
+        # the adaptive lattice may place its axial stations differently: compare along x
+        np.testing.assert_allclose(radius_of(now[idn]), np.interp(xn, xb, radius_of(before[idx])) - drop,
+                                   atol=1e-4)
     # the radial shroud clearance is now (at least) gap + rr
     x, r, _ = cartesian_to_cylindrical(to_world(e, e.mesh.vertices))
     clearance = default.blisk.shroud.radius_at(x) - r

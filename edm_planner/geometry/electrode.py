@@ -52,7 +52,10 @@ class ElectrodeDesign:
     split_overlap : float
         Overlap of the two sub-electrodes [mm].
     resolution : float
-        Target edge length of the electrode lattice [mm].
+        Largest edge length of the electrode lattice [mm].
+    chord_tolerance : float
+        Largest deviation of the lattice's flat triangles from the exact offset
+        faces [mm]; the lattice is refined where the walls curve tightly.
     """
 
     discharge_gap: float = 0.1
@@ -64,11 +67,12 @@ class ElectrodeDesign:
     split_fraction: float = 0.5
     split_overlap: float = 0.5
     resolution: float = 0.5
+    chord_tolerance: float = 0.005
 
     def __post_init__(self):
         w = "electrode"
         for name in ("discharge_gap", "circumferential_reduction", "radial_reduction",
-                     "split_fraction", "split_overlap", "resolution"):
+                     "split_fraction", "split_overlap", "resolution", "chord_tolerance"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
                 raise GeometryError(f"{w}.{name}: must be a number, got {value!r}")
@@ -90,6 +94,8 @@ class ElectrodeDesign:
             raise GeometryError(f"{w}.split_fraction: must lie in 0.05 .. 0.95, got {self.split_fraction:g}")
         if self.split_overlap < 0:
             raise GeometryError(f"{w}.split_overlap: must be >= 0 mm, got {self.split_overlap:g}")
+        if not 1e-4 <= self.chord_tolerance <= 0.1:
+            raise GeometryError(f"{w}.chord_tolerance: must lie in 0.0001 .. 0.1 mm, got {self.chord_tolerance:g}")
         if not 0.05 <= self.resolution <= 5:
             raise GeometryError(f"{w}.resolution: must lie in 0.05 .. 5 mm, got {self.resolution:g}")
         if self.axial_range is not None:
@@ -152,22 +158,27 @@ def _offset_wall(face, x, r, theta, grad, gap, sign, iterations=12):
     d(theta) = gap * |grad F|, |grad F| = sqrt(f_x^2 + f_r^2 + 1/r^2), then
     solves distance(delta) = gap per vertex by the secant method on the exact
     distance to the reconstructed face (where the closest point is on the
-    face's edge the relation is far from linear, hence the iterations).
+    face's edge the relation is far from linear, hence the iterations); only
+    the vertices not yet within 1e-10 mm are iterated.
     """
-    def distance(delta):
-        return face.closest_points(cylindrical_to_cartesian(x, r, theta + sign * delta))[1]
+    def distance(delta, k):
+        return face.closest_points(cylindrical_to_cartesian(x[k], r[k], theta[k] + sign * delta))[1]
 
+    every = np.arange(len(x))
     d0 = gap * np.sqrt(grad[:, 0] ** 2 + grad[:, 1] ** 2 + 1.0 / r**2)
-    f0 = distance(d0) - gap
+    f0 = distance(d0, every) - gap
     d1 = d0 * gap / np.maximum(f0 + gap, 1e-12)
+    f1 = distance(d1, every) - gap
     for _ in range(iterations):
-        f1 = distance(d1) - gap
-        if np.abs(f1).max() < 1e-10:
+        k = np.where(np.abs(f1) > 1e-10)[0]
+        if not len(k):
             break
-        slope = (f1 - f0) / np.where(np.abs(d1 - d0) > 1e-15, d1 - d0, 1e-15)
-        slope = np.where(slope > 1e-6, slope, (f1 + gap) / np.maximum(d1, 1e-15))  # fall back to the ratio
-        d0, f0 = d1, f1
-        d1 = np.maximum(d1 - f1 / slope, 0.0)
+        step = d1[k] - d0[k]
+        slope = (f1[k] - f0[k]) / np.where(np.abs(step) > 1e-15, step, 1e-15)
+        slope = np.where(slope > 1e-6, slope, (f1[k] + gap) / np.maximum(d1[k], 1e-15))  # fall back to the ratio
+        d0[k], f0[k] = d1[k], f1[k]
+        d1[k] = np.maximum(d1[k] - f1[k] / slope, 0.0)
+        f1[k] = distance(d1[k], k) - gap
     return theta + sign * d1
 
 
@@ -239,29 +250,86 @@ def design_electrodes(blisk, design=None):
 
 
 def _walls(blisk, design, x0, x1):
-    """Lattice stations and side angles over [x0, x1]: (X, R, theta_left, theta_right), each (nx, nr)."""
-    gap, res = design.discharge_gap, design.resolution
-    nx = max(8, int(np.ceil((x1 - x0) / res)) + 1)
-    x = np.linspace(x0, x1, nx)
-    hub = blisk.hub.offset(gap, x0 - 1, x1 + 1, step=min(res, 0.25))
-    shroud = blisk.shroud.offset(-gap, x0 - 1, x1 + 1, step=min(res, 0.25))
-    r_lo = hub.radius_at(x)
-    r_hi = shroud.radius_at(x) - design.radial_reduction
-    if np.min(r_hi - r_lo) < TOL.min_feature:
+    """Lattice stations and side angles over [x0, x1]: (X, R, theta_left, theta_right), each (nx, nr).
+
+    The axial stations start at the design resolution and are refined where a
+    flat lattice triangle would leave the exact offset surface by more than
+    the design's chord tolerance (the walls curve tightly near the blade edges, where a
+    0.5 mm chord across the trailing-edge rounding misses by 0.1 mm).
+    """
+    gap, res, tol = design.discharge_gap, design.resolution, design.chord_tolerance
+    hub = blisk.hub.offset(gap, x0 - 1, x1 + 1, step=min(res, 0.1))
+    shroud = blisk.shroud.offset(-gap, x0 - 1, x1 + 1, step=min(res, 0.1))
+    r_lo_all = hub.radius_at(np.linspace(x0, x1, 50))
+    r_hi_all = shroud.radius_at(np.linspace(x0, x1, 50)) - design.radial_reduction
+    if np.min(r_hi_all - r_lo_all) < TOL.min_feature:
         raise GeometryError(
             f"electrode.radial_reduction: {design.radial_reduction:g} mm leaves no electrode "
-            f"(channel height after the gap is {np.min(shroud.radius_at(x) - r_lo):.3f} mm)")
-    nr = max(4, int(np.ceil(np.max(r_hi - r_lo) / res)) + 1)
+            f"(channel height after the gap is {np.min(r_hi_all + design.radial_reduction - r_lo_all):.3f} mm)")
+    nr = max(4, int(np.ceil(np.max(r_hi_all - r_lo_all) / res)) + 1)
     rho = np.linspace(0, 1, nr)
-    X = np.repeat(x[:, None], nr, axis=1)
-    R = r_lo[:, None] + rho[None, :] * (r_hi - r_lo)[:, None]
-    xf, rf = X.ravel(), R.ravel()
-    th_s, th_p, inside, (g_s, g_p) = blisk.wall_angles(xf, rf, with_gradient=True)
-    if not inside.all():
-        raise GeometryError("electrode: the channel walls do not cover the electrode's axial range")
-    # discharge-gap offset on the exact distance to the reconstructed faces
-    th_l = _offset_wall(blisk.suction_face, xf, rf, th_s, g_s, gap, +1.0)
-    th_r = _offset_pressure(blisk, xf, rf, th_p, g_p, gap)
+
+    def stations(x, rho=rho):
+        nr = len(rho)
+        r_lo = hub.radius_at(x)
+        r_hi = shroud.radius_at(x) - design.radial_reduction
+        R = r_lo[:, None] + rho[None, :] * (r_hi - r_lo)[:, None]
+        xf, rf = np.repeat(x, nr), R.ravel()
+        th_s, th_p, inside, (g_s, g_p) = blisk.wall_angles(xf, rf, with_gradient=True)
+        if not inside.all():
+            raise GeometryError("electrode: the channel walls do not cover the electrode's axial range")
+        # discharge-gap offset on the exact distance to the reconstructed faces
+        th_l = _offset_wall(blisk.suction_face, xf, rf, th_s, g_s, gap, +1.0)
+        th_r = _offset_pressure(blisk, xf, rf, th_p, g_p, gap)
+        return R, th_l.reshape(len(x), nr), th_r.reshape(len(x), nr)
+
+    x = np.linspace(x0, x1, max(8, int(np.ceil((x1 - x0) / res)) + 1))
+    R, th_l, th_r = stations(x)
+    for _ in range(10):
+        xm = 0.5 * (x[:-1] + x[1:])
+        Rm, lm, rm = stations(xm)
+        dev = np.maximum.reduce([
+            np.abs(Rm - 0.5 * (R[:-1] + R[1:])),
+            np.abs(lm - 0.5 * (th_l[:-1] + th_l[1:])) * Rm,
+            np.abs(rm - 0.5 * (th_r[:-1] + th_r[1:])) * Rm]).max(axis=1)
+        bad = dev > tol
+        if not bad.any():
+            break
+        order = np.argsort(np.concatenate([x, xm[bad]]))
+        x = np.concatenate([x, xm[bad]])[order]
+        R = np.concatenate([R, Rm[bad]])[order]
+        th_l = np.concatenate([th_l, lm[bad]])[order]
+        th_r = np.concatenate([th_r, rm[bad]])[order]
+    # the quads' diagonals: the lattice triangles run from (i, j) to (i+1, j+1)
+    for _ in range(6):
+        xm = 0.5 * (x[:-1] + x[1:])
+        rm_ = 0.5 * (rho[:-1] + rho[1:])
+        Rm, lm, rm = stations(xm, rm_)
+        dev = np.maximum.reduce([
+            np.abs(lm - 0.5 * (th_l[:-1, :-1] + th_l[1:, 1:])) * Rm,
+            np.abs(rm - 0.5 * (th_r[:-1, :-1] + th_r[1:, 1:])) * Rm])
+        bad_x, bad_r = (dev > tol).any(axis=1), (dev > tol).any(axis=0)
+        if not bad_x.any():
+            break
+        x_new = np.sort(np.concatenate([x, xm[bad_x]]))
+        rho = np.sort(np.concatenate([rho, rm_[bad_r]]))
+        x = x_new
+        R, th_l, th_r = stations(x, rho)
+    # the same along the span, at every axial station
+    for _ in range(6):
+        rm_ = 0.5 * (rho[:-1] + rho[1:])
+        Rm, lm, rm = stations(x, rm_)
+        dev = np.maximum.reduce([
+            np.abs(lm - 0.5 * (th_l[:, :-1] + th_l[:, 1:])) * Rm,
+            np.abs(rm - 0.5 * (th_r[:, :-1] + th_r[:, 1:])) * Rm]).max(axis=0)
+        bad = dev > tol
+        if not bad.any():
+            break
+        order = np.argsort(np.concatenate([rho, rm_[bad]]))
+        rho = np.concatenate([rho, rm_[bad]])[order]
+        R = np.concatenate([R, Rm[:, bad]], axis=1)[:, order]
+        th_l = np.concatenate([th_l, lm[:, bad]], axis=1)[:, order]
+        th_r = np.concatenate([th_r, rm[:, bad]], axis=1)[:, order]
     h = design.circumferential_reduction
     if design.reduction_side == "left":
         th_l = th_l + h
@@ -269,12 +337,13 @@ def _walls(blisk, design, x0, x1):
         th_r = th_r - h
     else:
         th_l, th_r = th_l + h / 2, th_r - h / 2
-    width = (th_r - th_l) * rf
+    width = (th_r - th_l) * R
     if width.min() < TOL.min_feature:
         raise GeometryError(
             f"electrode.circumferential_reduction: h = {h:g} rad leaves no electrode "
-            f"(narrowest channel after the gap: {np.min(width) + h * rf[np.argmin(width)]:.3f} mm)")
-    return X, R, th_l.reshape(nx, nr), th_r.reshape(nx, nr)
+            f"(narrowest channel after the gap: {np.min(width + h * R):.3f} mm)")
+    X = np.repeat(x[:, None], R.shape[1], axis=1)
+    return X, R, th_l, th_r
 
 
 def _offset_pressure(blisk, x, r, theta, grad, gap):

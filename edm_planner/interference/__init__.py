@@ -1,0 +1,16 @@
+"""Interference checking: clearance of electrode poses to the channel surfaces.
+
+* :mod:`.exact_points` -- exact signed distance of points to the model
+  surfaces (reconstructed spline blade faces; hub and shroud reduced to the
+  (x, r) half-plane, Chen & Dong eq. 4-8). The reference for everything else.
+* :mod:`.mesh_exact` -- exact triangle-mesh clearance of the electrode mesh
+  (python-fcl), which also sees contact between sample points.
+* :mod:`.fast` -- a precomputed distance field for search, with a measured
+  error bound.
+* :mod:`.criteria` -- the papers' criteria (Huang eq. 3 and the
+  neighbour-angle test).
+* :mod:`.segment` -- continuous certification of a motion segment.
+"""
+
+#: order of the four channel surfaces in every array of clearances
+SURFACES = ("suction", "pressure", "hub", "shroud")
