@@ -11,6 +11,7 @@ PACKAGE = "edm_planner"
 # under pip, in the environment's bin/.
 NODES = {
     "geometry_loader": "edm_planner.nodes.geometry_loader:main",
+    "interference_checker": "edm_planner.nodes.interference_checker:main",
 }
 
 setup(

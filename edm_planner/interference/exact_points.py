@@ -8,8 +8,9 @@ to the distance from (x, rho) to the profile curve r(x) (Chen & Dong eq. 4-8:
 the optimal rotation angle is the point's own, eq. 6, leaving the univariate
 d(u) of eq. 7), minimised by Newton's method on the profile's cubic pieces.
 
-Signs: positive in the channel, negative inside material (inside blade k or
-k+1 at the point's (x, r), below the hub, above the shroud).
+Signs: positive in the channel, negative behind a wall: within the blade's
+meridional footprint, below the suction wall (inside blade k or through it
+into channel k-1) or above the pressure wall; below the hub; above the shroud.
 """
 
 import numpy as np
@@ -103,14 +104,18 @@ class ExactChannelDistance:
         b = self.blisk
         p = np.atleast_2d(np.asanyarray(points, dtype=np.float64))
         x, rho, th = cartesian_to_cylindrical(p)
-        # inside blade k (suction wall) / blade k+1 (pressure wall) at the point's (x, r)?
-        th_k = th - channel * b.pitch
-        th_k = np.mod(th_k + np.pi, 2 * np.pi) - np.pi
+        # behind the suction wall (inside blade k, or through it into channel k-1) / behind the
+        # pressure wall, wherever the blade exists at the point's (x, r); beyond the blade's
+        # meridional footprint there is no wall to be behind
+        th_k = np.mod(th - channel * b.pitch + np.pi, 2 * np.pi) - np.pi
+        th_k1 = np.mod(th_k - b.pitch + np.pi, 2 * np.pi) - np.pi
         th_minus, in_m = b.pressure_face.theta_at(x, rho)
         th_plus, in_p = b.suction_face.theta_at(x, rho)
-        in_blade_k = in_m & in_p & (th_k >= th_minus) & (th_k <= th_plus)
-        th_k1 = np.mod(th_k - b.pitch + np.pi, 2 * np.pi) - np.pi
-        in_blade_k1 = in_m & in_p & (th_k1 >= th_minus) & (th_k1 <= th_plus)
+        wrap = lambda a: np.mod(a + np.pi, 2 * np.pi) - np.pi   # noqa: E731
+        rel_s = wrap(th_k - th_plus)
+        rel_p = wrap(th_k1 - th_minus)
+        in_blade_k = in_p & (rel_s < 0) & (rel_s > -b.pitch)
+        in_blade_k1 = in_m & (rel_p > 0) & (rel_p < b.pitch)
         local_s = cylindrical_to_cartesian(x, rho, th_k)
         local_p = cylindrical_to_cartesian(x, rho, th_k1)
         d_s, f_s = self._blade(b.suction_face, local_s, in_blade_k)

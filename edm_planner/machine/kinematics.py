@@ -1,0 +1,132 @@
+"""Five-axis EDM kinematics after Huang & Liu eq. 2.
+
+Axes: X, Y, Z linear [mm]; A [rad] about X, carrying the blisk; C [rad]
+about the tool's Z axis, carrying the electrode. Axis values are measured
+from the final machining pose of the electrode in channel 0 (all zero there,
+as Huang's nodes start at the end position): the electrode frame's pose in
+the workpiece frame W is
+
+    T_WE(q) = R_x(A - A0) . T(X, Y, Z) . T_final . T(c) . R_z(C) . T(-c)
+
+with ``c`` the C axis' pivot in the electrode frame (Huang's T_d) and
+``T_final`` the electrode's final pose in channel 0. Channel k is selected
+by A = A0 + 2*pi*k/N (Huang III.A). Huang's H_x H_y H_z H_rc product acting
+in the tool frame, conjugated by H_wt, is exactly this composition.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..geometry.frames import rotation_about_x
+
+AXES_5 = ("X", "Y", "Z", "A", "C")
+
+
+def _rot_z(angle):
+    c, s = np.cos(angle), np.sin(angle)
+    m = np.zeros(np.shape(angle) + (4, 4))
+    m[..., 0, 0], m[..., 0, 1], m[..., 1, 0], m[..., 1, 1] = c, -s, s, c
+    m[..., 2, 2] = m[..., 3, 3] = 1.0
+    return m
+
+
+def _rot_x(angle):
+    c, s = np.cos(angle), np.sin(angle)
+    m = np.zeros(np.shape(angle) + (4, 4))
+    m[..., 1, 1], m[..., 1, 2], m[..., 2, 1], m[..., 2, 2] = c, -s, s, c
+    m[..., 0, 0] = m[..., 3, 3] = 1.0
+    return m
+
+
+@dataclass(frozen=True)
+class FiveAxisKinematics:
+    """Forward and inverse kinematics of the X, Y, Z, A, C machine for one electrode.
+
+    Parameters
+    ----------
+    final_pose : (4, 4) float
+        Electrode frame -> W at the machining pose in channel 0.
+    pitch : float
+        Blade pitch 2*pi/N [rad].
+    c_pivot : (3,) float
+        C axis pivot in the electrode frame [mm].
+    a_zero : float
+        A0 [rad].
+    """
+
+    final_pose: np.ndarray
+    pitch: float
+    c_pivot: tuple = (0.0, 0.0, 0.0)
+    a_zero: float = 0.0
+    axis_names: tuple = field(default=AXES_5)
+
+    def forward(self, q):
+        """Electrode poses in W for axis values.
+
+        Parameters
+        ----------
+        q : (n, 5) float
+            X, Y, Z [mm], A, C [rad].
+
+        Returns
+        -------
+        poses : (n, 4, 4) float
+        """
+        q = np.atleast_2d(np.asanyarray(q, dtype=np.float64))
+        c = np.asarray(self.c_pivot, dtype=np.float64)
+        pivot, unpivot = np.eye(4), np.eye(4)
+        pivot[:3, 3], unpivot[:3, 3] = c, -c
+        inner = self.final_pose @ pivot @ _rot_z(q[:, 4]) @ unpivot      # (n, 4, 4)
+        inner[:, :3, 3] += q[:, :3]
+        return _rot_x(q[:, 3] - self.a_zero) @ inner
+
+    def inverse(self, poses, channel=None):
+        """Axis values reaching electrode poses in W.
+
+        The rotation left after removing the A rotation must be a rotation about Z
+        (what C can do); A is taken from ``channel`` when given, else solved.
+
+        Returns
+        -------
+        q : (n, 5) float
+        residual : (n,) float
+            Frobenius norm of the rotation part this machine cannot reach (0 when exact).
+        """
+        poses = np.asanyarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+        R0 = self.final_pose[:3, :3]
+        out = np.empty((len(poses), 5))
+        resid = np.empty(len(poses))
+        for i, T in enumerate(poses):
+            # R = Rx(a) R0 Rz(C): solve a, C from M = R0^T Rx(-a) R, which must be Rz(C)
+            if channel is not None:
+                a_rel = channel * self.pitch
+            else:
+                # Rx(-a) R R0z... : choose a so that (Rx(-a) R R0^T-ish) leaves a z-rotation: brute refine
+                a_rel = _solve_a(T[:3, :3], R0)
+            A = a_rel + self.a_zero
+            Ra = rotation_about_x(-a_rel)
+            local = Ra @ T
+            M = R0.T @ local[:3, :3]
+            C = np.arctan2(M[1, 0], M[0, 0])
+            resid[i] = np.linalg.norm(M - _rot_z(C)[:3, :3])
+            pivot_term = self.final_pose @ _pivot_matrix(self.c_pivot, C)
+            out[i, :3] = local[:3, 3] - pivot_term[:3, 3]
+            out[i, 3], out[i, 4] = A, C
+        return out, resid
+
+
+def _pivot_matrix(c_pivot, C):
+    c = np.asarray(c_pivot, dtype=np.float64)
+    pivot, unpivot = np.eye(4), np.eye(4)
+    pivot[:3, 3], unpivot[:3, 3] = c, -c
+    return pivot @ _rot_z(C) @ unpivot
+
+
+def _solve_a(R, R0):
+    """Angle a with R0^T Rx(-a) R a rotation about Z (closed form on the (3,3) element)."""
+    # M = R0^T Rx(-a) R; M[2, 2] = 1 for a z-rotation: maximise e3^T R0^T Rx(-a) R e3
+    u = R0[:, 2]            # R0 e3
+    v = R[:, 2]             # R e3
+    # u . Rx(-a) v = u0 v0 + cos a (u1 v1 + u2 v2) + sin a (u1 v2 - u2 v1)
+    return float(np.arctan2(u[1] * v[2] - u[2] * v[1], u[1] * v[1] + u[2] * v[2]))

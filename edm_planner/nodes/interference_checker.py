@@ -1,0 +1,200 @@
+"""interference_checker node: clearances of electrode poses over DDS.
+
+Builds its models from the geometry_loader's latched ``geometry`` topic
+(every geometry it has seen, by id) and serves ``check_interference``
+(edm_planner_msgs/CheckInterference).
+
+Parameters
+----------
+max_poses : int
+    Most poses one request may hold.
+fast_spacing : float
+    Distance-field spacing [mm].
+cache_dir : str
+    Directory of cached distance fields ('' : ~/.cache/edm_planner).
+mesh_resolution : float
+    Surface mesh edge length of the MESH method [mm].
+paper_delta1 : float
+    Huang's Delta1 [mm].
+paper_delta2 : float
+    Huang's Delta2 [rad].
+prebuild_fast : bool
+    Build the distance field as soon as a geometry arrives.
+"""
+
+import json
+import logging
+import os
+import threading
+
+import numpy as np
+import rclpy
+from edm_planner_msgs.msg import BliskGeometry, SegmentCheck, SurfaceClearance
+from edm_planner_msgs.srv import CheckInterference
+from geometry_msgs.msg import Point
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+
+from ..errors import EdmError, ErrorCode
+from ..geometry.blisk import Blisk
+from ..interference.checker import ChannelChecker, CheckerOptions, Method
+from ..machine.kinematics import AXES_5, FiveAxisKinematics
+from .conversions import error_code, msg_to_mesh, pose_to_matrix
+from .geometry_loader import LATCHED
+
+
+class InterferenceCheckerNode(Node):
+    """Serves CheckInterference for every geometry published on ``geometry``."""
+
+    def __init__(self, **kwargs):
+        super().__init__("interference_checker", **kwargs)
+        self.declare_parameter("max_poses", 20000)
+        self.declare_parameter("fast_spacing", 0.1)
+        self.declare_parameter("cache_dir", "")
+        self.declare_parameter("mesh_resolution", 0.25)
+        self.declare_parameter("paper_delta1", 0.0)
+        self.declare_parameter("paper_delta2", 0.0)
+        self.declare_parameter("prebuild_fast", True)
+        self.checkers = {}
+        self.latest = None
+        self._lock = threading.Lock()
+        self.create_subscription(BliskGeometry, "geometry", self.on_geometry, LATCHED,
+                                 callback_group=MutuallyExclusiveCallbackGroup())
+        self.service = self.create_service(CheckInterference, "check_interference", self.on_check,
+                                           callback_group=MutuallyExclusiveCallbackGroup())
+
+    def _options(self):
+        cache = self.get_parameter("cache_dir").value or os.path.join(
+            os.path.expanduser("~"), ".cache", "edm_planner")
+        return CheckerOptions(
+            max_poses=int(self.get_parameter("max_poses").value),
+            fast_spacing=float(self.get_parameter("fast_spacing").value), cache_dir=cache,
+            mesh_resolution=float(self.get_parameter("mesh_resolution").value),
+            paper_delta1=float(self.get_parameter("paper_delta1").value),
+            paper_delta2=float(self.get_parameter("paper_delta2").value))
+
+    def on_geometry(self, msg):
+        gid = msg.summary.geometry_id
+        if gid in self.checkers:
+            return
+        try:
+            blisk = Blisk.from_dict(json.loads(msg.model_json))
+            electrodes = {eid: (msg_to_mesh(m), pose_to_matrix(p))
+                          for eid, m, p in zip(msg.electrode_ids, msg.electrodes, msg.electrode_final_poses)}
+            checker = ChannelChecker(blisk, electrodes, gid, self._options())
+        except Exception as exc:  # a geometry we cannot use must not take the node down
+            self.get_logger().error(f"geometry {gid[:12]} not usable: {exc!r}")
+            return
+        with self._lock:
+            self.checkers[gid] = checker
+            self.latest = gid
+        self.get_logger().info(f"geometry {gid[:12]}: {blisk.blade_count} channels, "
+                               f"electrodes {sorted(electrodes)}")
+        if self.get_parameter("prebuild_fast").value:
+            threading.Thread(target=self._prebuild, args=(checker,), daemon=True).start()
+
+    def _prebuild(self, checker):
+        try:
+            field = checker.fast
+            self.get_logger().info(f"distance field ready for {checker.geometry_id[:12]}: "
+                                   f"error bound {field.error_bound * 1e3:.2f} um")
+        except Exception as exc:
+            self.get_logger().error(f"distance field build failed: {exc!r}")
+
+    def on_check(self, request, response):
+        try:
+            self._check(request, response)
+            response.error_code = error_code(ErrorCode.SUCCESS)
+        except EdmError as exc:
+            response.error_code = error_code(exc.code)
+            response.message = exc.message
+            self.get_logger().warning(f"CheckInterference refused ({exc.code.name}): {exc.message}")
+        except Exception as exc:
+            logging.getLogger(__name__).exception("internal error")
+            response.error_code = error_code(ErrorCode.INTERNAL)
+            response.message = f"internal error: {exc!r}"
+        return response
+
+    def _check(self, request, response):
+        gid = request.geometry_id or self.latest
+        with self._lock:
+            checker = self.checkers.get(gid) if gid else None
+        if checker is None:
+            raise EdmError(ErrorCode.UNKNOWN_ID,
+                           f"unknown geometry id {request.geometry_id!r}; load it with the geometry_loader first")
+        try:
+            method = Method(request.method)
+        except ValueError:
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"unknown method {request.method}") from None
+        if not np.isfinite(request.threshold):
+            raise EdmError(ErrorCode.INVALID_REQUEST, "threshold must be finite (mm)")
+        mesh, final_pose = checker.electrode(request.electrode_id)
+        poses = self._poses(request, checker, final_pose)
+        result = checker.check(poses, channel=request.channel, electrode_id=request.electrode_id,
+                               method=method, threshold=request.threshold,
+                               closest=request.closest_points and method != Method.PAPER_CRITERIA,
+                               segments=request.segments)
+        for i in range(len(poses)):
+            c = SurfaceClearance()
+            c.suction, c.pressure, c.hub, c.shroud = (float(v) for v in result.clearances[i])
+            c.minimum = float(np.min(result.clearances[i]))
+            c.colliding = bool(result.colliding[i])
+            if result.closest is not None:
+                c.electrode_points = [Point(x=float(a), y=float(b), z=float(d)) for a, b, d in result.closest[i, :, 0]]
+                c.surface_points = [Point(x=float(a), y=float(b), z=float(d)) for a, b, d in result.closest[i, :, 1]]
+            response.clearances.append(c)
+        for seg in result.segments:
+            response.segment_checks.append(SegmentCheck(
+                certified=seg.certified, first_contact=float(seg.first_contact),
+                penetration_bound=float(seg.penetration_bound), subdivisions=int(seg.evaluations)))
+        response.error_bound = float(result.error_bound)
+        n_coll = int(result.colliding.sum())
+        response.message = f"{len(poses)} pose(s), {n_coll} colliding, method {method.name.lower()}"
+
+    @staticmethod
+    def _poses(request, checker, final_pose):
+        if request.axis_names or request.axis_values:
+            if request.poses:
+                raise EdmError(ErrorCode.INVALID_REQUEST, "give poses or axis values, not both")
+            if tuple(request.axis_names) != AXES_5:
+                raise EdmError(ErrorCode.INVALID_REQUEST,
+                               f"axis_names must be {list(AXES_5)} for this five-axis machine, "
+                               f"got {list(request.axis_names)}")
+            q = np.array([list(p.positions) for p in request.axis_values], dtype=np.float64)
+            if q.ndim != 2 or q.shape[1] != 5 or len(q) == 0:
+                raise EdmError(ErrorCode.INVALID_REQUEST, "each axis value needs 5 positions (X, Y, Z mm; A, C rad)")
+            if not np.isfinite(q).all():
+                raise EdmError(ErrorCode.INVALID_REQUEST, "axis values contain NaN or infinite values")
+            return FiveAxisKinematics(final_pose, checker.blisk.pitch).forward(q)
+        poses = []
+        for i, p in enumerate(request.poses):
+            q = np.array([p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w])
+            t = np.array([p.position.x, p.position.y, p.position.z])
+            if not (np.isfinite(q).all() and np.isfinite(t).all()):
+                raise EdmError(ErrorCode.INVALID_REQUEST, f"pose {i} contains NaN or infinite values")
+            if abs(np.linalg.norm(q) - 1.0) > 1e-6:
+                raise EdmError(ErrorCode.INVALID_REQUEST,
+                               f"pose {i}: quaternion is not unit (norm {np.linalg.norm(q):.6g})")
+            poses.append(pose_to_matrix(p))
+        if not poses:
+            raise EdmError(ErrorCode.INVALID_REQUEST, "no poses given")
+        return np.stack(poses)
+
+
+def main(args=None):
+    """Console entry point ``interference_checker``."""
+    logging.basicConfig(level=logging.INFO, format="[%(name)s] %(levelname)s: %(message)s")
+    rclpy.init(args=args)
+    node = InterferenceCheckerNode()
+    executor = MultiThreadedExecutor()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
