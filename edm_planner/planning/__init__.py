@@ -1,0 +1,1 @@
+"""Channel planning: backward exit search, per-node optimisation, spline fit, certification."""
