@@ -59,7 +59,125 @@ def bench_geometry():
     return out
 
 
-SUITES = {"geometry": bench_geometry}
+def _poses_near(final_pose, n, seed=0, spread=0.05):
+    """n electrode poses near the final pose (small random rigid motions)."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    poses = np.repeat(final_pose[None], n, axis=0)
+    rot = Rotation.from_rotvec(rng.normal(scale=spread / 100.0, size=(n, 3))).as_matrix()
+    poses[:, :3, :3] = rot @ final_pose[:3, :3]
+    poses[:, :3, 3] += rng.normal(scale=spread, size=(n, 3))
+    return poses
+
+
+def bench_interference():
+    """Fast, exact, triangle-exact and trimesh clearances on the default blisk; service round trip."""
+    import tempfile
+
+    import trimesh
+
+    from .interference.checker import ChannelChecker, CheckerOptions, Method
+    from .interference.exact_points import transform_points
+    from .interference.fast import FastChannelField
+    from .geometry.loader import load_geometry
+
+    g = load_geometry(CONFIG / "default_blisk.yaml")
+    b, e = g.blisk, g.electrodes[0]
+    out = {"electrode_points": int(len(e.mesh.vertices))}
+    with tempfile.TemporaryDirectory() as cache:
+        t = time.perf_counter()
+        field = FastChannelField(b, spacing=0.1)
+        out["fast_build_s"] = round(time.perf_counter() - t, 2)
+        t = time.perf_counter()
+        FastChannelField(b, spacing=0.1, cache_dir=cache, cache_key=g.geometry_id)
+        FastChannelField(b, spacing=0.1, cache_dir=cache, cache_key=g.geometry_id)
+        out["fast_cached_load_s"] = round((time.perf_counter() - t) / 2, 2)
+    out["fast_error_bound_mm"] = field.error_bound
+    out["fast_measured_max_error_mm"] = {k: float(v) for k, v in getattr(field, "measured_max_error", {}).items()}
+    pts = e.mesh.vertices
+    poses = _poses_near(e.final_pose, 200)
+    field.pose_clearances(poses[:2], pts)                      # JIT warm-up
+    t = _best_of(lambda: field.pose_clearances(poses, pts))
+    out["fast_points_per_s"] = round(len(poses) * len(pts) / t)
+    world = transform_points(poses[:1], pts)[0]
+    checker = ChannelChecker(b, {"main": (e.mesh, e.final_pose)}, g.geometry_id, CheckerOptions())
+    t = _best_of(lambda: checker.exact.clearances(world[:4000]), repeat=1)
+    out["exact_points_per_s"] = round(4000 / t)
+    meshes = b.channel_meshes()
+    t = time.perf_counter()
+    for m in meshes.values():
+        trimesh.proximity.closest_point(m, world[:2000])
+    out["trimesh_closest_point_points_per_s"] = round(2000 / (time.perf_counter() - t))
+    # verification of a densely sampled plan: 10^4 poses, exact minimum (fast pre-filter + exact candidates)
+    checker._fast = field
+    many = _poses_near(e.final_pose, 10000, seed=1, spread=0.01)
+    t = time.perf_counter()
+    checker.check(many, method=Method.EXACT)
+    out["exact_verify_10000_poses_s"] = round(time.perf_counter() - t, 2)
+    t = time.perf_counter()
+    mesh_result = checker.check(many[:20], method=Method.MESH)
+    out["mesh_method_s_per_pose"] = round((time.perf_counter() - t) / 20, 3)
+    out["mesh_faceting_bound_mm"] = mesh_result.error_bound
+    out["service_round_trip_1000_poses_ms"] = _service_round_trip(1000)
+    return out
+
+
+def _service_round_trip(n_poses, repeat=5):
+    """Median round trip of CheckInterference (fast method) over DDS, nodes in this process."""
+    import os
+    import threading
+
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    os.environ.setdefault("ROS_DOMAIN_ID", str(101 - os.getpid() % 50))
+    import rclpy
+    from edm_planner_msgs.srv import CheckInterference
+    from rclpy.context import Context
+    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.node import Node
+
+    from .nodes.conversions import matrix_to_pose, pose_to_matrix
+    from .nodes.geometry_loader import GeometryLoaderNode
+    from .nodes.interference_checker import InterferenceCheckerNode
+
+    ctx = Context()
+    rclpy.init(context=ctx)
+    ex = MultiThreadedExecutor(context=ctx)
+    loader = GeometryLoaderNode(context=ctx)
+    checker = InterferenceCheckerNode(context=ctx)
+    client = Node("bench_client", context=ctx)
+    for node in (loader, checker, client):
+        ex.add_node(node)
+    th = threading.Thread(target=ex.spin, daemon=True)
+    th.start()
+    try:
+        deadline = time.monotonic() + 120
+        while not checker.checkers and time.monotonic() < deadline:
+            time.sleep(0.1)
+        gid, ch = next(iter(checker.checkers.items()))
+        ch.fast                                                  # field built before timing
+        final = next(iter(ch.electrodes.values()))[1]
+        req = CheckInterference.Request(geometry_id=gid, method=CheckInterference.Request.METHOD_FAST)
+        req.poses = [matrix_to_pose(p) for p in _poses_near(final, n_poses)]
+        cli = client.create_client(CheckInterference, "check_interference")
+        cli.wait_for_service(timeout_sec=30)
+        times = []
+        for _ in range(repeat):
+            t = time.perf_counter()
+            fut = cli.call_async(req)
+            while not fut.done():
+                time.sleep(0.0005)
+            times.append(time.perf_counter() - t)
+        del pose_to_matrix
+        return round(1e3 * float(np.median(times)), 1)
+    finally:
+        ex.shutdown()
+        for node in (loader, checker, client):
+            node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
+SUITES = {"geometry": bench_geometry, "interference": bench_interference}
 
 
 def main(argv=None):

@@ -11,8 +11,9 @@ split into two sub-electrodes with an overlap.
 The electrode is a structured volume lattice (x along the axis, rho from hub
 to shroud, tau from the suction to the pressure wall) whose boundary is a
 closed, watertight triangle mesh. Its frame has its origin at the electrode's
-centre of volume at the final pose and axes parallel to W for channel 0; the
-final pose in channel k is ``rotation_about_x(k * pitch) @ final_pose``.
+centre of volume at the final pose, X along the blisk axis and Z radial
+(outwards through the centre), so that the C axis yaws it about the radial
+direction; the final pose in channel k is ``rotation_about_x(k * pitch) @ final_pose``.
 """
 
 from dataclasses import dataclass, field, fields
@@ -239,10 +240,14 @@ def design_electrodes(blisk, design=None):
         lattice = cylindrical_to_cartesian(X[..., None], R[..., None], T)    # (nx, nr, nt, 3)
         mesh = _box_mesh(lattice)
         centre = mesh.center_mass
-        mesh.apply_translation(-centre)
-        pose = np.eye(4)
+        # electrode frame: origin at the centre of volume, X along the blisk axis, Z radial
+        # outwards through the centre (the machine's C axis turns the electrode about it, as
+        # with the channel under the vertical C axis in Huang's machine), Y = Z x X
+        pose = rotation_about_x(np.arctan2(centre[2], centre[1]) - np.pi / 2)
         pose[:3, 3] = centre
-        local = lattice - centre
+        inverse = np.linalg.inv(pose)
+        mesh.apply_transform(inverse)
+        local = lattice @ inverse[:3, :3].T + inverse[:3, 3]
         samples = {"left": local[:, :, 0].reshape(-1, 3), "right": local[:, :, -1].reshape(-1, 3),
                    "lower": local[:, 0, :].reshape(-1, 3), "upper": local[:, -1, :].reshape(-1, 3)}
         electrodes.append(Electrode(name, mesh, pose, samples))

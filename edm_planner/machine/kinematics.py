@@ -130,3 +130,56 @@ def _solve_a(R, R0):
     v = R[:, 2]             # R e3
     # u . Rx(-a) v = u0 v0 + cos a (u1 v1 + u2 v2) + sin a (u1 v2 - u2 v1)
     return float(np.arctan2(u[1] * v[2] - u[2] * v[1], u[1] * v[1] + u[2] * v[2]))
+
+
+def state_poses(final_pose, position, a, c, b=None):
+    """Electrode poses from planner states (a machine with the C/B pivot at the electrode origin).
+
+    The pose is ``R_x(A) . T(X, Y, Z) . T_final . R_z(C) . R_y(B)``; the planner
+    works with the electrode origin's position ``p`` in W instead of the machine's
+    X, Y, Z: ``p = R_x(A) (XYZ + t_final)``.
+
+    Parameters
+    ----------
+    final_pose : (4, 4) float
+    position : (n, 3) float
+        Electrode origin in W [mm].
+    a, c : (n,) float
+        A and C [rad].
+    b : (n,) float, optional
+        B [rad] (six-axis machines).
+
+    Returns
+    -------
+    poses : (n, 4, 4) float
+    """
+    position = np.atleast_2d(np.asanyarray(position, dtype=np.float64))
+    a = np.atleast_1d(np.asanyarray(a, dtype=np.float64))
+    c = np.atleast_1d(np.asanyarray(c, dtype=np.float64))
+    rot = _rot_x(a)[:, :3, :3] @ final_pose[:3, :3] @ _rot_z(c)[:, :3, :3]
+    if b is not None:
+        rot = rot @ _rot_y(np.atleast_1d(np.asanyarray(b, dtype=np.float64)))[:, :3, :3]
+    poses = np.zeros((len(position), 4, 4))
+    poses[:, :3, :3] = rot
+    poses[:, :3, 3] = position
+    poses[:, 3, 3] = 1.0
+    return poses
+
+
+def state_axes(final_pose, position, a, c, b=None):
+    """Machine axis values [X, Y, Z, A, C(, B)] of planner states (inverse of ``state_poses``)."""
+    position = np.atleast_2d(np.asanyarray(position, dtype=np.float64))
+    a = np.atleast_1d(np.asanyarray(a, dtype=np.float64))
+    xyz = np.einsum("nji,nj->ni", _rot_x(a)[:, :3, :3], position) - final_pose[:3, 3]
+    cols = [xyz, a[:, None], np.atleast_1d(c)[:, None]]
+    if b is not None:
+        cols.append(np.atleast_1d(b)[:, None])
+    return np.hstack(cols)
+
+
+def _rot_y(angle):
+    c, s = np.cos(angle), np.sin(angle)
+    m = np.zeros(np.shape(angle) + (4, 4))
+    m[..., 0, 0], m[..., 0, 2], m[..., 2, 0], m[..., 2, 2] = c, s, -s, c
+    m[..., 1, 1] = m[..., 3, 3] = 1.0
+    return m

@@ -1,0 +1,387 @@
+"""Backward exit search (Huang III.A-B, Liu 4.1-4.2).
+
+Start at the electrode's final machining pose, step outwards along a
+reference direction (the machine X axis, or the channel centerline) and at
+every node choose the free motions -- lateral translation, A, C (and B on a
+six-axis machine) -- that keep every electrode sample point inside the
+channel with the margins and minimise the method's objective. Stop when the
+electrode is clear of the blisk by the exit distance; the reversed node list
+is the feed path. Where no step of the current length is feasible the step is
+halved (Liu 4.2: shorten the step adaptively); below the smallest step the
+channel is reported infeasible with the furthest node, the blocking surface
+and its clearance.
+
+Methods: ``default`` (warm start from the previous increments, then a
+vectorised pattern search on Huang's objective), ``ga`` (Huang's binary GA on
+the same objective), ``max_min_distance`` (Ayesta 2016: maximise the smallest
+clearance) and ``max_free_distance`` (Kang 2018: maximise the free travel along
+the reference direction).
+"""
+
+import logging
+import time
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+import numpy as np
+
+from ..errors import ErrorCode
+from ..interference import SURFACES
+from ..machine.kinematics import state_poses
+from .ga import GAOptions, NoFeasibleStart, minimize_ga
+from .objective import Weights, margin, smoothness
+
+_log = logging.getLogger(__name__)
+
+METHODS = ("default", "ga", "max_min_distance", "max_free_distance")
+REFERENCES = ("x_axis", "centerline")
+#: free variables per machine: lateral translation (2), then A, C (, B)
+FREE_AXES = {4: ("u1", "u2", "C"), 5: ("u1", "u2", "A", "C"), 6: ("u1", "u2", "A", "C", "B")}
+
+
+class SearchStatus(IntEnum):
+    """Outcome of a search (mapped onto ErrorCode by the planner)."""
+
+    SUCCESS = 0
+    START_IN_COLLISION = 1
+    INFEASIBLE = 2
+    TIMEOUT = 3
+
+    @property
+    def error_code(self):
+        return {0: ErrorCode.SUCCESS, 1: ErrorCode.ELECTRODE_IN_COLLISION,
+                2: ErrorCode.INFEASIBLE, 3: ErrorCode.TIMEOUT}[int(self)]
+
+
+@dataclass(frozen=True)
+class SearchOptions:
+    """Settings of the exit search (mm, rad, s)."""
+
+    method: str = "default"
+    reference: str = "x_axis"
+    axes: int = 5
+    step: float = 0.1
+    min_step: float = 0.0125
+    margin_hub_shroud: float = 0.02          # Delta1
+    margin_blade: float = 0.02               # Delta2
+    exit_distance: float = 2.0
+    exit_side: str = "auto"                  # "downstream" (+X), "upstream" (-X) or "auto"
+    lateral_ratio: float = 3.0               # largest lateral move per unit step
+    angle_step: float = 0.02                 # largest A/C/B change per node [rad]
+    weights: Weights = field(default_factory=Weights)
+    seed: int = 0
+    time_budget: float = 60.0
+    max_nodes: int = 5000
+    search_points: int = 1500                # electrode sample points used while searching
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
+        if self.reference not in REFERENCES:
+            raise ValueError(f"reference must be one of {REFERENCES}, got {self.reference!r}")
+        if self.axes not in FREE_AXES:
+            raise ValueError(f"axes must be 4, 5 or 6, got {self.axes!r}")
+        for name in ("step", "min_step", "exit_distance", "lateral_ratio", "angle_step", "time_budget"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v <= 0:
+                raise ValueError(f"{name} must be a positive number, got {v!r}")
+        for name in ("margin_hub_shroud", "margin_blade"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"{name} must be >= 0 mm, got {v!r}")
+        if self.exit_side not in ("auto", "upstream", "downstream"):
+            raise ValueError(f"exit_side must be auto, upstream or downstream, got {self.exit_side!r}")
+
+
+@dataclass
+class SearchResult:
+    """Nodes of the exit path (exit order: final pose first) or why there are none."""
+
+    status: SearchStatus
+    message: str
+    states: np.ndarray                       # (n, 3 + k): position (3), A, C(, B)
+    clearances: np.ndarray                   # (n, 4) fast clearances at the nodes
+    objfun1: float = 0.0
+    objfun2: float = 0.0
+    evaluations: int = 0
+    direction: int = 1
+    blocking_surface: str = ""
+    blocking_clearance: float = float("nan")
+    furthest_reference: float = 0.0
+    elapsed: float = 0.0
+
+
+class ExitSearch:
+    """Backward search of one electrode out of channel 0.
+
+    Parameters
+    ----------
+    blisk : Blisk
+    electrode : Electrode
+        Its mesh vertices and labelled samples (electrode frame).
+    field : FastChannelField-like
+        ``clearances(points (n, 3), channel) -> (n, 4)`` and ``error_bound``.
+    options : SearchOptions
+    centerline : Centerline, optional
+        Needed for ``reference='centerline'``.
+    """
+
+    def __init__(self, blisk, electrode, field, options=None, centerline=None):
+        self.blisk = blisk
+        self.electrode = electrode
+        self.field = field
+        self.options = options or SearchOptions()
+        self.centerline = centerline
+        o = self.options
+        self.k = len(FREE_AXES[o.axes])
+        rng = np.random.default_rng(o.seed)
+        samples = electrode.samples
+        total = sum(len(v) for v in samples.values())
+        self.points, self.labels = [], []
+        for i, label in enumerate(("left", "right", "upper", "lower")):
+            pts = samples[label]
+            keep = max(16, int(round(o.search_points * len(pts) / total)))
+            idx = np.sort(rng.choice(len(pts), size=min(keep, len(pts)), replace=False))
+            self.points.append(pts[idx])
+            self.labels.append(np.full(len(idx), i))
+        self.points = np.vstack(self.points)
+        self.labels = np.concatenate(self.labels)
+        self.margins = np.array([o.margin_blade, o.margin_blade, o.margin_hub_shroud, o.margin_hub_shroud])
+        self.bound = float(getattr(field, "error_bound", 0.0))
+        self.evaluations = 0
+        x0, x1 = blisk.axial_range
+        self.blisk_x = (x0, x1)
+        r_mid = 0.5 * (blisk.hub.radius_at(0.5 * (x0 + x1)) + blisk.shroud.radius_at(0.5 * (x0 + x1)))
+        # free-variable step bounds: lateral [mm] (per unit step), angles [rad]
+        self.scale = np.array([o.lateral_ratio, o.lateral_ratio] + [o.angle_step] * (self.k - 2))
+        self.r_mid = r_mid
+        self.barrier = 0.01
+
+    # -- evaluation of candidate states ---------------------------------------------
+    def _poses(self, states):
+        b = states[:, 5] if self.k == 5 else None
+        a = states[:, 3] if self.options.axes >= 5 else np.zeros(len(states))
+        c = states[:, 4] if self.options.axes >= 5 else states[:, 3]
+        return state_poses(self.electrode.final_pose, states[:, :3], a, c, b)
+
+    def _distances(self, states):
+        """(n, m, 4) fast clearances of the search points for candidate states."""
+        poses = self._poses(states)
+        world = np.einsum("pij,mj->pmi", poses[:, :3, :3], self.points) + poses[:, None, :3, 3]
+        n, m, _ = world.shape
+        self.evaluations += n
+        return self.field.clearances(world.reshape(-1, 3), 0).reshape(n, m, 4)
+
+    def _assess(self, states):
+        """Per candidate: minimum clearance per surface (n, 4) and feasibility (n,)."""
+        d = self._distances(states)
+        mins = d.min(axis=1)
+        ok = (mins - self.bound >= self.margins).all(axis=1)
+        return d, mins, ok
+
+    def _exit_reached(self, states, direction):
+        poses = self._poses(states)
+        xs = np.einsum("pj,mj->pm", poses[:, 0, :3], self.electrode.mesh.vertices) + poses[:, 0, 3][:, None]
+        if direction > 0:
+            return xs.min(axis=1) > self.blisk_x[1] + self.options.exit_distance
+        return xs.max(axis=1) < self.blisk_x[0] - self.options.exit_distance
+
+    # -- the reference direction ----------------------------------------------------
+    def _frame(self, position, direction):
+        """Unit reference direction and two normal directions at an electrode position."""
+        if self.options.reference == "x_axis" or self.centerline is None:
+            t = np.array([float(direction), 0.0, 0.0])
+        else:
+            pts = self.centerline.sample(400)
+            i = int(np.argmin(np.linalg.norm(pts - position, axis=1)))
+            if (direction > 0 and i == len(pts) - 1) or (direction < 0 and i == 0):
+                j = len(pts) - 1 if direction > 0 else 0          # beyond the ends: the end tangent
+                t = (pts[j] - pts[j - direction]) * direction
+            else:
+                t = (pts[min(i + 1, len(pts) - 1)] - pts[max(i - 1, 0)]) * direction
+            t /= np.linalg.norm(t)
+        # normals: the circumferential and the radial direction, made orthogonal to t
+        e_r = np.array([0.0, position[1], position[2]]) / np.hypot(position[1], position[2])
+        e_t = np.array([0.0, -e_r[2], e_r[1]])
+        n1 = e_t - t * (t @ e_t)
+        n1 /= np.linalg.norm(n1)
+        n2 = np.cross(t, n1)
+        return t, n1, n2
+
+    def _candidates(self, state, incr, step, frame):
+        """States reached from ``state`` by free increments ``incr`` (n, k) and a reference step."""
+        t, n1, n2 = frame
+        incr = np.atleast_2d(incr)
+        out = np.repeat(state[None], len(incr), axis=0)
+        out[:, :3] += step * (t + incr[:, :1] * n1 + incr[:, 1:2] * n2)
+        out[:, 3:3 + self.k - 2] += incr[:, 2:]
+        return out
+
+    # -- the per-node objective ------------------------------------------------------
+    def _objective(self, d, incr, prev_incr):
+        o, w = self.options, self.options.weights
+        if o.method == "max_min_distance":
+            return -(d.min(axis=1) - self.margins).min(axis=1)
+        sw = np.array(list(w.smoothness[:2]) + [w.smoothness[2] / (self.k - 2)] * (self.k - 2))
+        f1 = smoothness(incr, prev_incr, 2 * self.scale, sw)
+        f2 = margin(d[:, self.labels == 0, 0], d[:, self.labels == 1, 1], w.margin)
+        total = w.total[0] * f1 + w.total[1] * f2
+        if o.method == "default":
+            # beyond the paper: a log barrier on all four slacks keeps the electrode off the
+            # hub and shroud too (Objfun2 only balances the blades), so the search does not
+            # hug a wall at exactly the margin and jam one node later
+            slack = np.maximum(d.min(axis=1) - self.margins - self.bound, 1e-9)
+            total = total - self.barrier * np.log(slack / (slack + 1.0)).sum(axis=1)
+        return total, f1, f2
+
+    def _free_travel(self, states, step, frame, limit=40):
+        """Kang's free distance: how many further reference steps each candidate can take unchanged."""
+        t = frame[0]
+        travel = np.zeros(len(states))
+        alive = np.ones(len(states), dtype=bool)
+        for j in range(1, limit + 1):
+            moved = states[alive].copy()
+            moved[:, :3] += j * step * t
+            _, _, ok = self._assess(moved)
+            idx = np.where(alive)[0]
+            travel[idx[ok]] = j * step
+            alive[idx[~ok]] = False
+            if not alive.any():
+                break
+        return travel
+
+    # -- one node ------------------------------------------------------------------------
+    def _solve_node(self, state, prev_incr, step, frame):
+        o = self.options
+        rng = self._rng
+        if o.method == "ga":
+            lower, upper = -self.scale, self.scale
+            precision = np.full(self.k, 1e-3) * np.maximum(self.scale, 1e-3) / np.maximum(self.scale.max(), 1e-9)
+
+            def feasible(x):
+                return self._assess(self._candidates(state, x, step, frame))[2]
+
+            def objective(x):
+                d = self._distances(self._candidates(state, x, step, frame))
+                return self._objective(d, x, prev_incr)[0]
+
+            try:
+                res = minimize_ga(objective, feasible, lower, upper, precision,
+                                  GAOptions(population_size=24, generations=20, seed=int(rng.integers(1 << 31)),
+                                            max_init_attempts=600),
+                                  seeds=[np.clip(prev_incr, lower, upper)])
+            except NoFeasibleStart:
+                return None
+            return res.x
+        # default and baselines: vectorised pattern search around the warm start
+        best = np.clip(prev_incr, -self.scale, self.scale)
+        spread = 0.25 * self.scale
+        best_val, best_ok = None, False
+        for _ in range(6):
+            trial = np.vstack([best, best + np.diag(spread), best - np.diag(spread),
+                               best + rng.normal(size=(4 * self.k, self.k)) * spread])
+            trial = np.clip(trial, -self.scale, self.scale)
+            states = self._candidates(state, trial, step, frame)
+            d, mins, ok = self._assess(states)
+            if o.method == "max_free_distance":
+                val = np.full(len(trial), np.inf)
+                if ok.any():
+                    val[ok] = -self._free_travel(states[ok], step, frame) \
+                        - 1e-3 * (mins[ok] - self.margins).min(axis=1)
+            else:
+                val = self._objective(d, trial, prev_incr)
+                val = val[0] if isinstance(val, tuple) else val
+                val = np.where(ok, val, np.inf)
+            if np.isfinite(val).any():
+                i = int(np.argmin(val))
+                if best_val is None or val[i] < best_val:
+                    best, best_val, best_ok = trial[i], val[i], True
+                spread *= 0.5
+            else:
+                # nothing feasible: push towards the largest clearance and widen the search
+                slack = (mins - self.margins).min(axis=1)
+                best = trial[int(np.argmax(slack))]
+                spread = np.minimum(spread * 2.0, self.scale)
+        return best if best_ok else None
+
+    # -- the search ----------------------------------------------------------------------
+    def run(self, progress=None):
+        """Search the exit path; ``progress(fraction, nodes, reference_mm)`` is called now and then."""
+        o = self.options
+        t0 = time.perf_counter()
+        self._rng = np.random.default_rng(o.seed)
+        start = np.zeros(3 + self.k - 2 + 0)
+        start = np.zeros(3 + (self.k - 2))
+        start[:3] = self.electrode.final_pose[:3, 3]
+        d0, m0, ok0 = self._assess(start[None])
+        if not ok0[0]:
+            j = int(np.argmin(m0[0] - self.margins))
+            return SearchResult(SearchStatus.START_IN_COLLISION,
+                                f"the electrode at its final pose is {m0[0, j]:.4f} mm from the {SURFACES[j]} "
+                                f"surface, below the margin {self.margins[j]:.4f} mm (+ field bound "
+                                f"{self.bound * 1e3:.1f} um)", start[None], m0, evaluations=self.evaluations,
+                                blocking_surface=SURFACES[j], blocking_clearance=float(m0[0, j]),
+                                elapsed=time.perf_counter() - t0)
+        sides = {"downstream": [1], "upstream": [-1], "auto": [1, -1]}[o.exit_side]
+        results = [self._run_side(start, m0[0], side, t0, progress) for side in sides]
+        done = [r for r in results if r.status == SearchStatus.SUCCESS]
+        if done:
+            best = min(done, key=lambda r: r.objfun1 + r.objfun2)
+        else:
+            best = max(results, key=lambda r: r.furthest_reference)
+        best.evaluations = self.evaluations
+        best.elapsed = time.perf_counter() - t0
+        return best
+
+    def _run_side(self, start, clear0, direction, t0, progress):
+        o = self.options
+        states, clears = [start], [clear0]
+        prev_incr = np.zeros(self.k)
+        step = o.step
+        f1_sum = f2_sum = 0.0
+        travelled = 0.0
+        expected = (self.blisk_x[1] - self.blisk_x[0]) + 2 * o.exit_distance + 30.0
+        last_block = (SURFACES[0], float("nan"))
+        while True:
+            if time.perf_counter() - t0 > o.time_budget:
+                return self._fail(SearchStatus.TIMEOUT, f"time budget of {o.time_budget:g} s used up",
+                                  states, clears, direction, travelled, last_block)
+            if len(states) > o.max_nodes:
+                return self._fail(SearchStatus.INFEASIBLE, f"no exit within {o.max_nodes} nodes",
+                                  states, clears, direction, travelled, last_block)
+            state = states[-1]
+            frame = self._frame(state[:3], direction)
+            incr = self._solve_node(state, prev_incr, step, frame)
+            if incr is None:
+                # record what blocks, then shorten the step (Liu 4.2)
+                d, mins, _ = self._assess(self._candidates(state, prev_incr[None], step, frame))
+                j = int(np.argmin(mins[0] - self.margins))
+                last_block = (SURFACES[j], float(mins[0, j]))
+                step *= 0.5
+                if step < o.min_step:
+                    return self._fail(SearchStatus.INFEASIBLE,
+                                      f"no feasible step after {travelled:.3f} mm along the reference: blocked by the "
+                                      f"{last_block[0]} surface (clearance {last_block[1]:.4f} mm)",
+                                      states, clears, direction, travelled, last_block)
+                continue
+            new = self._candidates(state, incr[None], step, frame)
+            d, mins, ok = self._assess(new)
+            val = self._objective(d, incr[None], prev_incr)
+            if isinstance(val, tuple):
+                f1_sum += float(val[1][0])
+                f2_sum += float(val[2][0])
+            states.append(new[0])
+            clears.append(mins[0])
+            prev_incr = incr
+            travelled += step
+            step = min(o.step, step * 2.0)                     # recover the nominal step
+            if progress is not None and len(states) % 25 == 0:
+                progress(min(travelled / expected, 0.99), len(states), travelled)
+            if self._exit_reached(new, direction)[0]:
+                return SearchResult(SearchStatus.SUCCESS, f"exit found after {travelled:.2f} mm, {len(states)} nodes",
+                                    np.array(states), np.array(clears), f1_sum, f2_sum, direction=direction,
+                                    furthest_reference=travelled)
+
+    def _fail(self, status, message, states, clears, direction, travelled, block):
+        return SearchResult(status, message, np.array(states), np.array(clears), direction=direction,
+                            blocking_surface=block[0], blocking_clearance=block[1], furthest_reference=travelled)

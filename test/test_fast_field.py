@@ -1,0 +1,336 @@
+"""The fast method of interference checking (edm_planner.interference.fast).
+
+The field is checked against the exact method, ``ExactChannelDistance``. Its
+blade distances come from ``BladeFace.closest_points``, which can stop short
+of the minimum where the closest point lies on an edge of the face (a few
+micrometres on the default blisk, some 20 on Rotor 37, see
+``FastChannelField.exact_method_excess``). Every closest-point solver returns
+the distance to an actual face point, i.e. an upper bound of the true
+distance, so the reference here is the exact method with its blade
+distances replaced by the numba solver's wherever that one is smaller
+(``FastChannelField.reference_clearances``; same surfaces, same sign rule).
+
+One field per geometry and module (the default blisk at 0.1 mm, Rotor 37 at
+0.3 mm); small coarse fields for the cache tests. Units: mm, rad.
+"""
+
+import logging
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from edm_planner.geometry.frames import cylindrical_to_cartesian, rotation_about_x
+from edm_planner.geometry.loader import load_geometry
+from edm_planner.interference import SURFACES
+from edm_planner.interference import fast
+from edm_planner.interference.exact_points import ExactChannelDistance, ProfileDistance
+from edm_planner.interference.fast import ACCURATE_WITHIN, FastChannelField, spline_surface_eval
+
+from conftest import CONFIG
+
+#: the issue's accuracy target [mm]
+TARGET = 0.005
+
+
+# ----------------------------------------------------------------- fixtures
+
+@pytest.fixture(scope="module")
+def default():
+    return load_geometry(CONFIG / "default_blisk.yaml")
+
+
+@pytest.fixture(scope="module")
+def rotor37():
+    return load_geometry(CONFIG / "rotor37.yaml")
+
+
+@pytest.fixture(scope="module")
+def field(default, tmp_path_factory):
+    return FastChannelField(default.blisk, spacing=0.1, cache_dir=tmp_path_factory.mktemp("fast"),
+                            cache_key=default.geometry_id)
+
+
+@pytest.fixture(scope="module")
+def field37(rotor37):
+    return FastChannelField(rotor37.blisk, spacing=0.3)
+
+
+@pytest.fixture(scope="module")
+def exact(default):
+    return ExactChannelDistance(default.blisk)
+
+
+def electrode_points(electrode, step=1):
+    return np.concatenate([electrode.samples[k][::step] for k in ("left", "right", "upper", "lower")])
+
+
+def small_motions(pose, n, seed, shift=0.05, turn=0.002):
+    """n poses: ``pose`` moved by random rigid motions about the electrode origin."""
+    rng = np.random.default_rng(seed)
+    out = np.repeat(pose[None], n, axis=0)
+    out[:, :3, :3] = pose[:3, :3] @ Rotation.from_rotvec(rng.normal(scale=turn, size=(n, 3))).as_matrix()
+    out[:, :3, 3] += rng.normal(scale=shift, size=(n, 3))
+    return out
+
+
+def to_world(pose, points):
+    return points @ pose[:3, :3].T + pose[:3, 3]
+
+
+def assert_agrees(fld, points, channel=0, exact=None):
+    """|fast - reference| <= error_bound for every surface within 2 mm (inside the grid); returns the max."""
+    ref, _ = fld.reference_clearances(points, channel, exact)
+    got = fld.clearances(points, channel)
+    near = (np.abs(ref) <= ACCURATE_WITHIN) & fld.inside_grid(points, channel)[:, None]
+    err = np.where(near, np.abs(got - ref), 0.0)
+    worst = np.unravel_index(np.argmax(err), err.shape)
+    assert err.max() <= fld.error_bound, (
+        f"{SURFACES[worst[1]]}: fast {got[worst]:.6f} vs exact {ref[worst]:.6f} at {points[worst[0]]}, "
+        f"bound {fld.error_bound:.2e}")
+    return err.max()
+
+
+# ----------------------------------------------------------------- the numba pieces
+
+@pytest.mark.parametrize("which", ["suction_face", "pressure_face"])
+def test_numba_spline_evaluator_matches_the_spline_surface(default, rotor37, which):
+    rng = np.random.default_rng(3)
+    for g in (default, rotor37):
+        s = getattr(g.blisk, which).surface
+        u = np.concatenate([rng.uniform(0, 1, 2000), s.knots_u, [0.0, 1.0, 1.0, 0.0]])
+        v = np.concatenate([rng.uniform(0, 1, 2000), rng.choice(s.knots_v, len(s.knots_u)), [0.0, 1.0, 0.0, 1.0]])
+        out = spline_surface_eval(s.control_points, s.knots_u, s.knots_v, u, v)
+        np.testing.assert_allclose(out[:, 0], s.evaluate(u, v), rtol=0, atol=1e-10)
+        s_u, s_v = s.derivatives(u, v)
+        scale = np.abs(s_u).max() + np.abs(s_v).max()
+        np.testing.assert_allclose(out[:, 1], s_u, rtol=0, atol=1e-10 * scale)
+        np.testing.assert_allclose(out[:, 2], s_v, rtol=0, atol=1e-10 * scale)
+        # second derivatives against central differences of the first
+        h = 1e-6
+        inner = (u > 2 * h) & (u < 1 - 2 * h) & (v > 2 * h) & (v < 1 - 2 * h)
+        uu, vv = u[inner][:500], v[inner][:500]
+        d = spline_surface_eval(s.control_points, s.knots_u, s.knots_v, uu, vv)
+        up = spline_surface_eval(s.control_points, s.knots_u, s.knots_v, uu + h, vv)
+        um = spline_surface_eval(s.control_points, s.knots_u, s.knots_v, uu - h, vv)
+        # a knot between u - h and u + h makes the difference one-sided: compare where both agree
+        fd = (up[:, 1] - um[:, 1]) / (2 * h)
+        ok = np.linalg.norm(fd - d[:, 3], axis=1) < 1e-3 * np.linalg.norm(d[:, 3], axis=1).max()
+        assert ok.mean() > 0.9
+
+
+def test_numba_profile_distance_is_exact(default, rotor37):
+    """Against a dense sampling of the profile: never farther, and at most the sampling error closer.
+
+    ``ProfileDistance.signed`` agrees to 1e-9 mm except where the closest
+    point is the kink at an end of the profile (the cylinder continues it
+    with slope 0), on which its Newton iteration cannot settle: there the
+    numba solver, which also tries the ends, is never farther.
+    """
+    rng = np.random.default_rng(5)
+    for g in (default, rotor37):
+        b = g.blisk
+        lo, hi = b.hub.x_range
+        x = rng.uniform(lo - 20, hi + 20, 600)
+        for profile, below, sign in ((b.hub, True, 1.0), (b.shroud, False, -1.0)):
+            xb, c, bounds = fast._profile_arrays(profile)
+            rho = profile.radius_at(x) + rng.uniform(-5, 25, x.size) * sign
+            ref = ProfileDistance(profile, material_below=below).signed(x, rho)[0]
+            got = np.array([fast._profile_signed(xb, c, bounds, sign, a, r) for a, r in zip(x, rho)])
+            dense = np.empty_like(got)
+            for i in range(len(x)):
+                dv = abs(rho[i] - profile.radius_at(x[i]))
+                t = np.concatenate([np.linspace(x[i] - dv, x[i] + dv, 4001), [lo, hi]])
+                dense[i] = np.hypot(t - x[i], profile.radius_at(t) - rho[i]).min()
+            assert np.array_equal(np.sign(got), np.sign(ref))
+            assert (np.abs(got) <= dense + 1e-12).all() and (np.abs(got) >= dense - 2e-6).all()
+            assert (np.abs(got) <= np.abs(ref) + 1e-12).all()
+            away = (np.abs(x - lo) > 1.01 * np.abs(ref)) & (np.abs(x - hi) > 1.01 * np.abs(ref))   # no end in reach
+            np.testing.assert_allclose(got[away], ref[away], rtol=0, atol=1e-9)
+
+
+def test_nearest_start_is_the_kd_tree_nearest_sample(default):
+    f = FastChannelField.__new__(FastChannelField)
+    f.blisk = default.blisk
+    samples, _, scale, box, start, items = f._xr_starts()
+    rng = np.random.default_rng(7)
+    for face in (0, 1):
+        q = rng.uniform(samples[face].min(0) - 0.3, samples[face].max(0) + 0.3, (3000, 2))
+        d_ref, _ = cKDTree(samples[face]).query(q)
+        got = np.array([fast._nearest_start(face, a * scale[face, 0], r * scale[face, 1], samples, scale, box,
+                                            start, items) for a, r in q])
+        np.testing.assert_allclose(np.linalg.norm(samples[face][got] - q, axis=1), d_ref, rtol=0, atol=1e-12)
+
+
+def test_numba_exact_solver_is_never_farther_than_the_exact_method(field, exact):
+    pts = field.error_sample_points(300, seed=11)
+    raw = exact.clearances(pts)
+    mine = field.exact_blade_distances(pts)
+    assert np.array_equal(np.sign(mine), np.sign(raw[:, :2]))
+    assert (np.abs(mine) <= np.abs(raw[:, :2]) + 1e-9).all()
+    assert np.abs(np.abs(mine) - np.abs(raw[:, :2])).max() < 0.05
+
+
+# ----------------------------------------------------------------- accuracy
+
+def test_error_bound_meets_the_target(field, field37):
+    for f in (field, field37):
+        assert 0 < f.error_bound <= TARGET
+        assert set(f.measured_max_error) == set(SURFACES)
+        assert max(f.measured_max_error.values()) * 1.5 <= f.error_bound
+        assert min(f.error_sample_count.values()) > 500
+
+
+def test_fast_agrees_with_exact_on_fresh_random_points(field, exact):
+    for channel in (0, 5):
+        pts = field.error_sample_points(600, seed=21 + channel)
+        if channel:
+            pts = pts @ rotation_about_x(channel * field.blisk.pitch)[:3, :3].T
+        assert_agrees(field, pts, channel, exact)
+
+
+@settings(max_examples=25, derandomize=True, deadline=None)
+@given(surface=st.sampled_from(SURFACES), channel=st.sampled_from([0, 5]), seed=st.integers(0, 2**32 - 1),
+       depth=st.floats(-0.5, 2.0))
+def test_fast_agrees_with_exact_near_each_surface(field, exact, surface, channel, seed, depth):
+    """30 points at about ``depth`` mm from one surface (negative: behind it), anywhere along the channel."""
+    b = field.blisk
+    rng = np.random.default_rng(seed)
+    x0, x1 = b.full_span_axial_range
+    x = rng.uniform(x0, x1, 30)
+    hub, shr = b.hub.radius_at(x), b.shroud.radius_at(x)
+    r = hub + rng.uniform(0.02, 0.98, 30) * (shr - hub)
+    th_s, th_p, _ = b.wall_angles(x, r, channel)
+    d = depth + rng.uniform(-0.05, 0.05, 30)
+    if surface == "suction":
+        pts = cylindrical_to_cartesian(x, r, th_s + d / r)
+    elif surface == "pressure":
+        pts = cylindrical_to_cartesian(x, r, th_p - d / r)
+    else:
+        th = th_s + rng.uniform(0, 1, 30) * (th_p - th_s)
+        pts = cylindrical_to_cartesian(x, hub + d if surface == "hub" else shr - d, th)
+    assert_agrees(field, pts, channel, exact)
+
+
+@pytest.mark.parametrize("channel", [0, 5])
+def test_fast_agrees_with_exact_on_the_electrode(default, field, exact, channel):
+    e = default.electrodes[0]
+    pts = electrode_points(e, step=7)
+    final = e.pose_in_channel(channel, default.blisk.pitch)
+    for pose in np.concatenate([final[None], small_motions(final, 4, seed=channel)]):
+        assert_agrees(field, to_world(pose, pts), channel, exact)
+    # at the final pose the walls are the discharge gap away
+    gap = field.clearances(to_world(final, pts), channel).min(axis=0)
+    np.testing.assert_allclose(gap[:2], 0.1, atol=2e-3 + field.error_bound)
+
+
+def test_rotor37_agrees_with_exact(rotor37, field37):
+    ex = ExactChannelDistance(rotor37.blisk)
+    assert_agrees(field37, field37.error_sample_points(400, seed=31), 0, ex)
+    e = rotor37.electrodes[0]
+    assert_agrees(field37, to_world(e.final_pose, electrode_points(e, step=11)), 0, ex)
+
+
+# ----------------------------------------------------------------- signs, outside, poses
+
+def test_points_pushed_into_the_walls_are_negative(default, field):
+    b = default.blisk
+    rng = np.random.default_rng(41)
+    u, v = rng.uniform(0.1, 0.9, 200), rng.uniform(0.1, 0.9, 200)
+    for k, face in enumerate((b.suction_face, b.pressure_face)):
+        s = face.surface.evaluate(u, v)
+        n = face.surface.normals(u, v)
+        tangent = np.column_stack([np.zeros(len(s)), -s[:, 2], s[:, 1]])      # towards +theta
+        n *= np.sign(np.einsum("ij,ij->i", n, tangent))[:, None]              # n now points to +theta
+        into = -n if k == 0 else n          # into the blade: -theta behind the suction face, +theta behind pressure
+        for depth, sign in ((0.2, -1.0), (-0.2, 1.0)):
+            p = s + depth * into
+            if k == 1:                              # channel 0's pressure wall is this face on blade 1
+                p = p @ rotation_about_x(b.pitch)[:3, :3].T
+            d = field.clearances(p)[:, k]
+            assert (np.sign(d) == sign).all()
+            np.testing.assert_allclose(d, -depth, atol=field.error_bound)
+    x = rng.uniform(*b.full_span_axial_range, 100)
+    th_s, th_p, _ = b.wall_angles(x, np.full(100, 110.0))
+    th = 0.5 * (th_s + th_p)
+    below = field.clearances(cylindrical_to_cartesian(x, b.hub.radius_at(x) - 0.3, th))[:, 2]
+    above = field.clearances(cylindrical_to_cartesian(x, b.shroud.radius_at(x) + 0.3, th))[:, 3]
+    assert (below < 0).all() and (above < 0).all()
+
+
+def test_points_outside_the_grid_get_lower_bounds(default, field, exact):
+    b = default.blisk
+    (gx0, gx1), (gr0, gr1), _ = field.grid_bounds
+    rng = np.random.default_rng(51)
+    n = 300
+    x = np.concatenate([rng.uniform(gx0 - 30, gx0, n), rng.uniform(gx1, gx1 + 30, n), rng.uniform(gx0, gx1, 2 * n)])
+    r = np.concatenate([rng.uniform(gr0, gr1, 2 * n), rng.uniform(gr0 - 6, gr0, n), rng.uniform(gr1, gr1 + 6, n)])
+    th = rng.uniform(-0.3, 0.4, 4 * n)
+    pts = cylindrical_to_cartesian(x, r, th)
+    assert not field.inside_grid(pts).any()
+    ref, _ = field.reference_clearances(pts, 0, exact)
+    got = field.clearances(pts)
+    assert (got[:, :2] <= ref[:, :2] + 1e-9).all()
+    # hub and shroud: the exact profile distance, or the table (within its bound near the surfaces)
+    near = np.abs(ref[:, 2:]) <= ACCURATE_WITHIN
+    assert (np.abs(got[:, 2:] - ref[:, 2:])[near] <= field.error_bound).all()
+    np.testing.assert_allclose(got[:, 2:], ref[:, 2:], atol=0.01)
+    # far from the blade row the bound is not useless: at least the axial distance to the blades
+    ahead = x < b.axial_range[0] - 5
+    assert (got[ahead, :2] > 0).all()
+
+
+def test_pose_clearances_is_clearances_then_minimum(default, field):
+    e = default.electrodes[0]
+    pts = electrode_points(e, step=13)
+    for channel in (0, 5):
+        poses = small_motions(e.pose_in_channel(channel, default.blisk.pitch), 70, seed=61 + channel, shift=0.3)
+        poses[-1, :3, 3] += [40.0, 0.0, 0.0]                 # one pose far outside the grid
+        low, arg = field.pose_clearances(poses, pts, channel)
+        assert low.shape == (70, 4) and arg.shape == (70, 4)
+        for q in (0, 33, 69):
+            d = field.clearances(to_world(poses[q], pts), channel)
+            np.testing.assert_array_equal(low[q], d.min(axis=0))
+            np.testing.assert_array_equal(d[arg[q], range(4)], low[q])
+
+
+# ----------------------------------------------------------------- cache
+
+def coarse_field(blisk, cache_dir, key):
+    """A quick field for the cache tests (0.6 mm, few error samples)."""
+    return FastChannelField(blisk, spacing=0.6, cache_dir=cache_dir, cache_key=key, error_samples=300)
+
+
+def test_cache_round_trip_and_corrupt_file(default, tmp_path, caplog):
+    b = default.blisk
+    built = coarse_field(b, tmp_path, "geom-1")
+    files = list(tmp_path.glob("*.npz"))
+    assert built.build_seconds > 0 and len(files) == 1
+    loaded = coarse_field(b, tmp_path, "geom-1")
+    assert loaded.build_seconds == 0 and "loaded_from" in loaded.stats
+    assert loaded.error_bound == built.error_bound and loaded.measured_max_error == built.measured_max_error
+    pts = built.error_sample_points(100, seed=71)
+    np.testing.assert_array_equal(loaded.clearances(pts), built.clearances(pts))
+    # a damaged file is rebuilt (and rewritten)
+    files[0].write_bytes(files[0].read_bytes()[:5000])
+    with caplog.at_level(logging.WARNING, logger="edm_planner.interference.fast"):
+        again = coarse_field(b, tmp_path, "geom-1")
+    assert again.build_seconds > 0 and "unusable" in caplog.text
+    np.testing.assert_array_equal(again.clearances(pts), built.clearances(pts))
+    assert coarse_field(b, tmp_path, "geom-1").build_seconds == 0
+    # arrays of the wrong shape: rebuilt too
+    with np.load(files[0]) as data:
+        arrays = dict(data)
+    arrays["grid"] = arrays["grid"][:-1]
+    np.savez(files[0], **arrays)
+    assert coarse_field(b, tmp_path, "geom-1").build_seconds > 0
+
+
+def test_cache_of_another_geometry_is_not_used(default, rotor37, tmp_path):
+    coarse_field(default.blisk, tmp_path, "same-key")
+    other = coarse_field(rotor37.blisk, tmp_path, "same-key")
+    assert other.build_seconds > 0
+    assert_agrees(other, other.error_sample_points(100, seed=81))

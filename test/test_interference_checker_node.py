@@ -1,0 +1,159 @@
+"""interference_checker over real DDS, fed by a real geometry_loader."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+from edm_planner_msgs.msg import AxisPoint, BliskGeometry, ErrorCode
+from edm_planner_msgs.srv import CheckInterference
+from geometry_msgs.msg import Pose
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from edm_planner.geometry.frames import rotation_about_x
+from edm_planner.nodes.conversions import matrix_to_pose, pose_to_matrix
+from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode
+from edm_planner.nodes.interference_checker import InterferenceCheckerNode
+
+GAP = 0.1
+PITCH = 2 * np.pi / 60
+
+
+@pytest.fixture(scope="module")
+def system(tmp_path_factory):
+    """geometry_loader (default blisk) + interference_checker + a client, for the whole module."""
+    from ros_harness import InProcessRos
+
+    ros = InProcessRos()
+    cache = tmp_path_factory.mktemp("cache")
+    ros.add(GeometryLoaderNode(context=ros.context))
+    ros.add(InterferenceCheckerNode(context=ros.context, parameter_overrides=[
+        Parameter("cache_dir", value=str(cache)), Parameter("max_poses", value=2000)]))
+    client = ros.add(Node("checker_client", context=ros.context))
+    got = []
+    ready = threading.Event()
+    client.create_subscription(BliskGeometry, "geometry", lambda m: (got.append(m), ready.set()), LATCHED)
+    assert ready.wait(60)
+    geo = got[0]
+    final = pose_to_matrix(geo.electrode_final_poses[0])
+    yield ros, client, geo.summary.geometry_id, final
+    ros.close()
+
+
+def call(system, poses=(), method=CheckInterference.Request.METHOD_EXACT, **fields):
+    ros, client, gid, _ = system
+    req = CheckInterference.Request(geometry_id=fields.pop("geometry_id", gid), method=method, **fields)
+    req.poses = [p if isinstance(p, Pose) else matrix_to_pose(p) for p in poses]
+    deadline = time.monotonic() + 120
+    while True:                     # the checker may still be receiving the latched geometry
+        res = ros.call(client, CheckInterference, "check_interference", req, timeout=120)
+        if res.error_code.val != ErrorCode.UNKNOWN_ID or "geometry" not in res.message or time.monotonic() > deadline:
+            return res
+        time.sleep(0.5)
+
+
+def clearances(res):
+    return np.array([[c.suction, c.pressure, c.hub, c.shroud] for c in res.clearances])
+
+
+def test_final_pose_keeps_the_discharge_gap_exact_and_fast(system):
+    final = system[3]
+    exact = call(system, [final], closest_points=True)
+    assert exact.error_code.val == ErrorCode.SUCCESS, exact.message
+    c = clearances(exact)[0]
+    # every electrode vertex sits at the gap from the blade faces (exactly) and the hub/shroud (to 3 um)
+    np.testing.assert_allclose(c, GAP, atol=3e-6)
+    assert not exact.clearances[0].colliding and exact.error_bound == 0.0
+    pairs = exact.clearances[0]
+    for e, s, d in zip(pairs.electrode_points, pairs.surface_points, c):
+        assert np.hypot(np.hypot(e.x - s.x, e.y - s.y), e.z - s.z) == pytest.approx(d, abs=1e-6)
+    fast = call(system, [final], method=CheckInterference.Request.METHOD_FAST)
+    assert fast.error_code.val == ErrorCode.SUCCESS, fast.message
+    assert 0 < fast.error_bound <= 0.005
+    np.testing.assert_allclose(clearances(fast)[0], c, atol=fast.error_bound)
+
+
+def test_mesh_and_paper_methods(system):
+    final = system[3]
+    mesh = call(system, [final], method=CheckInterference.Request.METHOD_MESH)
+    assert mesh.error_code.val == ErrorCode.SUCCESS, mesh.message
+    c = clearances(mesh)[0]
+    # the triangles stay within the electrode's chord tolerance (5 um) of the gap, plus the wall faceting
+    assert np.all(c > GAP - 0.005 - mesh.error_bound) and np.all(c <= GAP + 1e-6)
+    paper = call(system, [final], method=CheckInterference.Request.METHOD_PAPER_CRITERIA)
+    assert paper.error_code.val == ErrorCode.SUCCESS and not paper.clearances[0].colliding
+    pushed = final.copy()
+    pushed[:3, 3] = rotation_about_x(-0.012)[:3, :3] @ pushed[:3, 3]      # ~1.3 mm into the suction blade
+    assert call(system, [pushed], method=CheckInterference.Request.METHOD_PAPER_CRITERIA).clearances[0].colliding
+    exact = clearances(call(system, [pushed]))[0]
+    assert exact[0] < -1.0 and exact[1] > GAP
+
+
+def test_channels_and_axis_values(system):
+    final = system[3]
+    base = clearances(call(system, [final]))[0]
+    k = 7
+    in_k = rotation_about_x(k * PITCH) @ final
+    np.testing.assert_allclose(clearances(call(system, [in_k], channel=k))[0], base, atol=1e-9)
+    # the same pose as machine axis values: all zero = final pose; A = k * pitch selects channel k
+    res = call(system, axis_names=["X", "Y", "Z", "A", "C"], channel=k,
+               axis_values=[AxisPoint(positions=[0.0, 0.0, 0.0, k * PITCH, 0.0])])
+    assert res.error_code.val == ErrorCode.SUCCESS, res.message
+    np.testing.assert_allclose(clearances(res)[0], base, atol=1e-9)
+
+
+def test_segment_check_catches_a_collision_between_clear_waypoints(system):
+    final = system[3]
+    out = final.copy()
+    out[0, 3] += 40.0                       # straight out along X, well beyond the trailing edge
+    ends = call(system, [out], method=CheckInterference.Request.METHOD_FAST)
+    assert clearances(ends)[0].min() > 0.3  # clear outside the blisk (hub and shroud continue as cylinders)
+    res = call(system, [final, out], method=CheckInterference.Request.METHOD_FAST, segments=True, threshold=0.0)
+    assert res.error_code.val == ErrorCode.SUCCESS, res.message
+    (seg,) = res.segment_checks
+    # a full-size electrode cannot leave the curved channel straight along X
+    assert not seg.certified and 0.0 <= seg.first_contact < 0.5 and seg.penetration_bound > 0
+    # while a short move inside the channel is certified
+    nudge = final.copy()
+    nudge[0, 3] += 0.01
+    res = call(system, [final, nudge], method=CheckInterference.Request.METHOD_FAST, segments=True,
+               threshold=0.05)
+    assert res.segment_checks[0].certified, res.segment_checks[0]
+
+
+@pytest.mark.parametrize("fields, code, words", [
+    ({"geometry_id": "f" * 64}, ErrorCode.UNKNOWN_ID, "unknown geometry"),
+    ({"electrode_id": "nope"}, ErrorCode.UNKNOWN_ID, "unknown electrode"),
+    ({"method": 9}, ErrorCode.INVALID_REQUEST, "unknown method"),
+    ({"channel": 60}, ErrorCode.INVALID_REQUEST, "channel 60"),
+    ({"threshold": float("nan")}, ErrorCode.INVALID_REQUEST, "threshold"),
+    ({"axis_names": ["X", "Y", "Z", "A", "C"], "axis_values": [AxisPoint(positions=[0.0] * 5)]},
+     ErrorCode.INVALID_REQUEST, "not both"),
+])
+def test_bad_requests(system, fields, code, words):
+    res = call(system, [system[3]], **fields)
+    assert res.error_code.val == code and words in res.message, res.message
+
+
+@pytest.mark.parametrize("names, values, words", [
+    (["X", "Y"], [[0.0, 0.0]], "axis_names"),
+    (["X", "Y", "Z", "A", "C"], [[0.0] * 4], "5 positions"),
+    (["X", "Y", "Z", "A", "C"], [[0.0, float("nan"), 0.0, 0.0, 0.0]], "NaN"),
+])
+def test_bad_axis_values(system, names, values, words):
+    res = call(system, [], axis_names=names, axis_values=[AxisPoint(positions=v) for v in values])
+    assert res.error_code.val == ErrorCode.INVALID_REQUEST and words in res.message, res.message
+
+
+def test_bad_poses(system):
+    assert call(system, []).error_code.val == ErrorCode.INVALID_REQUEST
+    p = matrix_to_pose(system[3])
+    p.orientation.w = 0.5
+    res = call(system, [p])
+    assert res.error_code.val == ErrorCode.INVALID_REQUEST and "not unit" in res.message
+    p = matrix_to_pose(system[3])
+    p.position.x = float("nan")
+    assert call(system, [p]).error_code.val == ErrorCode.INVALID_REQUEST
+    res = call(system, [system[3]] * 2001, method=CheckInterference.Request.METHOD_FAST)
+    assert res.error_code.val == ErrorCode.INVALID_REQUEST and "at most 2000" in res.message
