@@ -153,19 +153,31 @@ class ChannelChecker:
             return self.mesh.clearances(mesh, poses, channel).min(axis=1) - self.mesh.faceting_bound
         return self.exact_pose_clearances(poses, points, channel)[0].min(axis=1)
 
-    def exact_pose_clearances(self, poses, points, channel):
-        """Exact per-surface minima over the points, evaluating only the candidates when a fast field exists."""
+    def exact_pose_clearances(self, poses, points, channel, chunk_points=2_000_000):
+        """Exact per-surface minima over the points, evaluating only the candidates when a fast field exists.
+
+        Poses are processed in chunks of about ``chunk_points`` electrode points so
+        that memory stays bounded for long plans.
+        """
         if self._fast is None:
             return pose_clearances(self.exact.clearances, poses, points, channel)
-        world = transform_points(poses, points)
-        P, M, _ = world.shape
-        fast = self.fast.clearances(world.reshape(-1, 3), channel).reshape(P, M, 4)
-        cutoff = fast.min(axis=1, keepdims=True) + 2 * self.fast.error_bound + 1e-9
-        cand = (fast <= cutoff).any(axis=2)                     # points that may attain some minimum
-        idx = np.nonzero(cand)
-        exact = np.full((P, M, 4), np.inf)
-        exact[idx] = self.exact.clearances(world[idx], channel)
-        return exact.min(axis=1), exact.argmin(axis=1)
+        M = len(points)
+        step = max(1, chunk_points // max(M, 1))
+        mins, args = [], []
+        for start in range(0, len(poses), step):
+            world = transform_points(poses[start:start + step], points)
+            P = len(world)
+            fast = self.fast.clearances(world.reshape(-1, 3), channel).reshape(P, M, 4)
+            # the field's bound holds within 2 mm of a surface; farther out only its far bound does
+            fmin = fast.min(axis=1, keepdims=True)
+            bound = np.where(fmin < 2.0, self.fast.error_bound, getattr(self.fast, "far_error_bound", np.inf))
+            cutoff = fmin + 2 * bound + 1e-9
+            idx = np.nonzero((fast <= cutoff).any(axis=2))      # points that may attain some minimum
+            exact = np.full((P, M, 4), np.inf)
+            exact[idx] = self.exact.clearances(world[idx], channel)
+            mins.append(exact.min(axis=1))
+            args.append(exact.argmin(axis=1))
+        return np.concatenate(mins), np.concatenate(args)
 
     def check(self, poses, channel=0, electrode_id="", method=Method.EXACT, threshold=0.0,
               closest=False, segments=False):
