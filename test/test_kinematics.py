@@ -1,7 +1,6 @@
 """Five-axis kinematics (Huang eq. 2): forward/inverse round trips and channel selection."""
 
 import numpy as np
-import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation

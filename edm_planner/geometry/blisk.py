@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-import trimesh
 
 from ..constants import SIZE, TOL
 from ..errors import GeometryError

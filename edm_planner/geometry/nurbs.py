@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import logging
 
 import numpy as np
-from scipy.interpolate import BSpline, NdBSpline, make_interp_spline
+from scipy.interpolate import NdBSpline, make_interp_spline
 
 from ..errors import GeometryError
 

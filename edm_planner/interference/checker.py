@@ -21,7 +21,6 @@ from enum import IntEnum
 import numpy as np
 
 from ..errors import EdmError, ErrorCode
-from . import SURFACES
 from .exact_points import ExactChannelDistance, pose_clearances, transform_points
 from .segment import certify_segment, screw_motion
 

@@ -25,13 +25,11 @@ import os
 import pathlib
 import threading
 
-import rclpy
 from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 from edm_planner_msgs.msg import BliskGeometry
 from edm_planner_msgs.srv import LoadGeometry
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from visualization_msgs.msg import MarkerArray
@@ -39,6 +37,7 @@ from visualization_msgs.msg import MarkerArray
 from ..errors import EdmError, ErrorCode
 from ..geometry.blisk import CHANNEL_SURFACES
 from ..geometry.loader import load_geometry
+from .runtime import spin_node
 from .conversions import error_code, matrix_to_pose, mesh_marker, mesh_to_msg, summary_to_msg
 
 #: QoS of data that late joiners need (like tf_static)
@@ -170,17 +169,4 @@ class GeometryLoaderNode(Node):
 
 def main(args=None):
     """Console entry point ``geometry_loader``."""
-    logging.basicConfig(level=logging.INFO, format="[%(name)s] %(levelname)s: %(message)s")
-    rclpy.init(args=args)
-    node = GeometryLoaderNode()
-    executor = MultiThreadedExecutor()
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return spin_node(GeometryLoaderNode, args)

@@ -28,18 +28,17 @@ import os
 import threading
 
 import numpy as np
-import rclpy
 from edm_planner_msgs.msg import BliskGeometry, SegmentCheck, SurfaceClearance
 from edm_planner_msgs.srv import CheckInterference
 from geometry_msgs.msg import Point
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 
 from ..errors import EdmError, ErrorCode
 from ..geometry.blisk import Blisk
 from ..interference.checker import ChannelChecker, CheckerOptions, Method
 from ..machine.kinematics import AXES_5, FiveAxisKinematics
+from .runtime import spin_node
 from .conversions import error_code, msg_to_mesh, pose_to_matrix
 from .geometry_loader import LATCHED
 
@@ -184,17 +183,4 @@ class InterferenceCheckerNode(Node):
 
 def main(args=None):
     """Console entry point ``interference_checker``."""
-    logging.basicConfig(level=logging.INFO, format="[%(name)s] %(levelname)s: %(message)s")
-    rclpy.init(args=args)
-    node = InterferenceCheckerNode()
-    executor = MultiThreadedExecutor()
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return spin_node(InterferenceCheckerNode, args)
