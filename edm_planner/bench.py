@@ -109,12 +109,15 @@ def bench_interference():
     for m in meshes.values():
         trimesh.proximity.closest_point(m, world[:2000])
     out["trimesh_closest_point_points_per_s"] = round(2000 / (time.perf_counter() - t))
-    # verification of a densely sampled plan: 10^4 poses, exact minimum (fast pre-filter + exact candidates)
+    # verification of a plan: exact minimum per pose (fast pre-filter + exact candidates), near the
+    # final pose, where the electrode's faces parallel the walls and most vertices are candidates
     checker._fast = field
-    many = _poses_near(e.final_pose, 10000, seed=1, spread=0.01)
+    many = _poses_near(e.final_pose, 20, seed=1, spread=0.01)
     t = time.perf_counter()
     checker.check(many, method=Method.EXACT)
-    out["exact_verify_10000_poses_s"] = round(time.perf_counter() - t, 2)
+    out["exact_verify_s_per_pose_near_final"] = round((time.perf_counter() - t) / len(many), 3)
+    out["exact_verify_10000_poses_near_final_s_extrapolated"] = round(
+        1e4 * (time.perf_counter() - t) / len(many), 1)
     t = time.perf_counter()
     mesh_result = checker.check(many[:20], method=Method.MESH)
     out["mesh_method_s_per_pose"] = round((time.perf_counter() - t) / 20, 3)
