@@ -1,20 +1,16 @@
 """Benchmarks (``make bench``): speed figures as JSON, never asserted in tests.
 
-Usage: ``python -m edm_planner.bench --out out/bench.json [--only geometry]``.
+Usage: ``python -m edm_planner.bench --out out/bench.json [--only geometry]`` (see ``__main__``).
 Each figure states its unit in its key. One process, one core in use.
 """
 
-import argparse
-import json
 import logging
 import pathlib
-import platform
-import resource
 import time
 
 import numpy as np
 
-CONFIG = pathlib.Path(__file__).resolve().parent.parent / "config"
+CONFIG = pathlib.Path(__file__).resolve().parents[2] / "config"
 _log = logging.getLogger(__name__)
 
 
@@ -29,7 +25,7 @@ def _best_of(fn, repeat=3):
 
 def bench_geometry():
     """Loading the three example geometries and the face queries the planner makes."""
-    from .geometry.loader import load_geometry
+    from ..geometry.loader import load_geometry
 
     out = {}
     for name in ("default_blisk", "rotor37", "mesh_blisk"):
@@ -52,7 +48,7 @@ def bench_geometry():
     t = _best_of(lambda: b.suction_face.theta_at(x, r))
     out["face_theta_at_points_per_s"] = round(n / t)
     th_s, th_p, _ = b.wall_angles(x, r)
-    from .geometry.frames import cylindrical_to_cartesian
+    from ..geometry.frames import cylindrical_to_cartesian
     pts = cylindrical_to_cartesian(x, r, th_s + rng.uniform(0, 1, n) * (th_p - th_s))
     t = _best_of(lambda: b.suction_face.closest_points(pts))
     out["face_closest_point_points_per_s"] = round(n / t)
@@ -77,10 +73,10 @@ def bench_interference():
 
     import trimesh
 
-    from .interference.checker import ChannelChecker, CheckerOptions, Method
-    from .interference.exact_points import transform_points
-    from .interference.fast import FastChannelField
-    from .geometry.loader import load_geometry
+    from ..interference.checker import ChannelChecker, CheckerOptions, Method
+    from ..interference.exact_points import transform_points
+    from ..interference.fast import FastChannelField
+    from ..geometry.loader import load_geometry
 
     g = load_geometry(CONFIG / "default_blisk.yaml")
     b, e = g.blisk, g.electrodes[0]
@@ -122,86 +118,10 @@ def bench_interference():
     mesh_result = checker.check(many[:20], method=Method.MESH)
     out["mesh_method_s_per_pose"] = round((time.perf_counter() - t) / 20, 3)
     out["mesh_faceting_bound_mm"] = mesh_result.error_bound
-    out["service_round_trip_1000_poses_ms"] = _service_round_trip(1000)
+    from ..nodes.bench_service import service_round_trip
+
+    out["service_round_trip_1000_poses_ms"] = service_round_trip(1000, _poses_near)
     return out
 
 
-def _service_round_trip(n_poses, repeat=5):
-    """Median round trip of CheckInterference (fast method) over DDS, nodes in this process."""
-    import os
-    import threading
-
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    os.environ.setdefault("ROS_DOMAIN_ID", str(101 - os.getpid() % 50))
-    import rclpy
-    from edm_planner_msgs.srv import CheckInterference
-    from rclpy.context import Context
-    from rclpy.executors import MultiThreadedExecutor
-    from rclpy.node import Node
-
-    from .nodes.conversions import matrix_to_pose, pose_to_matrix
-    from .nodes.geometry_loader import GeometryLoaderNode
-    from .nodes.interference_checker import InterferenceCheckerNode
-
-    ctx = Context()
-    rclpy.init(context=ctx)
-    ex = MultiThreadedExecutor(context=ctx)
-    loader = GeometryLoaderNode(context=ctx)
-    checker = InterferenceCheckerNode(context=ctx)
-    client = Node("bench_client", context=ctx)
-    for node in (loader, checker, client):
-        ex.add_node(node)
-    th = threading.Thread(target=ex.spin, daemon=True)
-    th.start()
-    try:
-        deadline = time.monotonic() + 120
-        while not checker.checkers and time.monotonic() < deadline:
-            time.sleep(0.1)
-        gid, ch = next(iter(checker.checkers.items()))
-        ch.fast                                                  # field built before timing
-        final = next(iter(ch.electrodes.values()))[1]
-        req = CheckInterference.Request(geometry_id=gid, method=CheckInterference.Request.METHOD_FAST)
-        req.poses = [matrix_to_pose(p) for p in _poses_near(final, n_poses)]
-        cli = client.create_client(CheckInterference, "check_interference")
-        cli.wait_for_service(timeout_sec=30)
-        times = []
-        for _ in range(repeat):
-            t = time.perf_counter()
-            fut = cli.call_async(req)
-            while not fut.done():
-                time.sleep(0.0005)
-            times.append(time.perf_counter() - t)
-        del pose_to_matrix
-        return round(1e3 * float(np.median(times)), 1)
-    finally:
-        ex.shutdown()
-        for node in (loader, checker, client):
-            node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
-
-
 SUITES = {"geometry": bench_geometry, "interference": bench_interference}
-
-
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="out/bench.json", help="JSON file to write")
-    parser.add_argument("--only", choices=sorted(SUITES), action="append", help="run only these suites")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING)
-    result = {"machine": {"python": platform.python_version(), "processor": platform.machine()},
-              "timestamp": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-    for name in args.only or sorted(SUITES):
-        t = time.perf_counter()
-        result[name] = SUITES[name]()
-        result[name]["suite_s"] = round(time.perf_counter() - t, 2)
-    result["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
-    path = pathlib.Path(args.out)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(result, indent=2))
-    print(json.dumps(result, indent=2))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,0 +1,35 @@
+"""``python -m edm_planner.bench``: run the benchmark suites, write and print JSON."""
+
+import argparse
+import json
+import logging
+import pathlib
+import platform
+import resource
+import time
+
+from . import SUITES
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description="Run the edm_planner benchmarks (JSON out).")
+    parser.add_argument("--out", default="out/bench.json", help="JSON file to write")
+    parser.add_argument("--only", choices=sorted(SUITES), action="append", help="run only these suites")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING)
+    result = {"machine": {"python": platform.python_version(), "processor": platform.machine()},
+              "timestamp": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    for name in args.only or sorted(SUITES):
+        t = time.perf_counter()
+        result[name] = SUITES[name]()
+        result[name]["suite_s"] = round(time.perf_counter() - t, 2)
+    result["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+    path = pathlib.Path(args.out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(result, indent=2))
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
