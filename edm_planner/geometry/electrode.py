@@ -316,10 +316,14 @@ def _walls(blisk, design, x0, x1):
         bad_x, bad_r = (dev > tol).any(axis=1), (dev > tol).any(axis=0)
         if not bad_x.any():
             break
-        x_new = np.sort(np.concatenate([x, xm[bad_x]]))
-        rho = np.sort(np.concatenate([rho, rm_[bad_r]]))
-        x = x_new
-        R, th_l, th_r = stations(x, rho)
+        # solve the offsets only where the lattice is new: old rows x new columns, new rows x all columns
+        x_add, r_add = xm[bad_x], rm_[bad_r]
+        rho_all = np.concatenate([rho, r_add])
+        cols, rows = stations(x, r_add), stations(x_add, rho_all)
+        ox, orr = np.argsort(np.concatenate([x, x_add])), np.argsort(rho_all)
+        R, th_l, th_r = (np.vstack([np.hstack([old, c]), r])[ox][:, orr]
+                         for old, c, r in zip((R, th_l, th_r), cols, rows))
+        x, rho = np.concatenate([x, x_add])[ox], rho_all[orr]
     # the same along the span, at every axial station
     for _ in range(6):
         rm_ = 0.5 * (rho[:-1] + rho[1:])

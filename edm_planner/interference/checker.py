@@ -143,12 +143,11 @@ class ChannelChecker:
         return poses
 
     # -- queries ---------------------------------------------------------------
-    def lower_bound(self, poses, points, channel, method):
+    def lower_bound(self, poses, points, channel, method, mesh=None):
         """(P,) lower bound of each pose's clearance (min over surfaces) by a method."""
         if method == Method.FAST:
             return self.fast.pose_clearances(poses, points, channel)[0].min(axis=1) - self.fast.error_bound
         if method == Method.MESH:
-            mesh = self._mesh_for_points
             return self.mesh.clearances(mesh, poses, channel).min(axis=1) - self.mesh.faceting_bound
         return self.exact_pose_clearances(poses, points, channel)[0].min(axis=1)
 
@@ -202,7 +201,6 @@ class ChannelChecker:
         poses = self.validate(poses, channel)
         mesh, _ = self.electrode(electrode_id)
         points = np.asarray(mesh.vertices)
-        self._mesh_for_points = mesh
         pairs = None
         if method == Method.PAPER_CRITERIA:
             feasible = self.paper.pose_feasible(poses, points, channel=channel)
@@ -234,6 +232,6 @@ class ChannelChecker:
             for i in range(len(poses) - 1):
                 pose_at, lip = screw_motion(poses[i], poses[i + 1], points)
                 result.segments.append(certify_segment(
-                    lambda p: self.lower_bound(p, points, channel, method), pose_at, lip, threshold,
+                    lambda p: self.lower_bound(p, points, channel, method, mesh), pose_at, lip, threshold,
                     c0=ends[i], c1=ends[i + 1]))
         return result

@@ -985,7 +985,7 @@ def _exact_blade(face, x, rho, th, fp, ip, slow, work):
         cp, tu, tv = slow[0], slow[1], slow[2]
     else:
         cp, tu, tv = slow[3], slow[4], slow[5]
-    line_uv, coarse_uv, kind, line_theta, line_inside = slow[6], slow[7], slow[8], slow[9], slow[10]
+    coarse_uv, kind, line_theta, line_inside = slow[7], slow[8], slow[9], slow[10]
     C = ip[_COARSE]
     nx, nr = ip[_NX], ip[_NR]
     pitch = fp[_PITCH]

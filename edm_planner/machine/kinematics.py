@@ -102,7 +102,7 @@ class FiveAxisKinematics:
             if channel is not None:
                 a_rel = channel * self.pitch
             else:
-                # Rx(-a) R R0z... : choose a so that (Rx(-a) R R0^T-ish) leaves a z-rotation: brute refine
+                # choose a so that R0^T Rx(-a) R is a rotation about Z (what C can do)
                 a_rel = _solve_a(T[:3, :3], R0)
             A = a_rel + self.a_zero
             Ra = rotation_about_x(-a_rel)

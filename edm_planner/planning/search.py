@@ -151,10 +151,8 @@ class ExitSearch:
         self.evaluations = 0
         x0, x1 = blisk.axial_range
         self.blisk_x = (x0, x1)
-        r_mid = 0.5 * (blisk.hub.radius_at(0.5 * (x0 + x1)) + blisk.shroud.radius_at(0.5 * (x0 + x1)))
         # free-variable step bounds: lateral [mm] (per unit step), angles [rad]
         self.scale = np.array([o.lateral_ratio, o.lateral_ratio] + [o.angle_step] * (self.k - 2))
-        self.r_mid = r_mid
         self.barrier = 0.01
 
     # -- evaluation of candidate states ---------------------------------------------
@@ -310,7 +308,6 @@ class ExitSearch:
         o = self.options
         t0 = time.perf_counter()
         self._rng = np.random.default_rng(o.seed)
-        start = np.zeros(3 + self.k - 2 + 0)
         start = np.zeros(3 + (self.k - 2))
         start[:3] = self.electrode.final_pose[:3, 3]
         d0, m0, ok0 = self._assess(start[None])
