@@ -183,3 +183,29 @@ def _rot_y(angle):
     m[..., 0, 0], m[..., 0, 2], m[..., 2, 0], m[..., 2, 2] = c, s, -s, c
     m[..., 1, 1] = m[..., 3, 3] = 1.0
     return m
+
+
+def axis_poses(final_pose, axis_names, q):
+    """Electrode poses in W from machine axis values in the planner's convention.
+
+    Inverse of :func:`state_axes` for the axis sets ("X", "Y", "Z", "C"),
+    ("X", "Y", "Z", "A", "C") and ("X", "Y", "Z", "A", "C", "B").
+
+    Parameters
+    ----------
+    final_pose : (4, 4) float
+    axis_names : sequence of str
+    q : (n, k) float
+        Axis values [mm, rad] in the order of ``axis_names``.
+
+    Returns
+    -------
+    (n, 4, 4) float
+    """
+    q = np.atleast_2d(np.asanyarray(q, dtype=np.float64))
+    col = {name: q[:, i] for i, name in enumerate(axis_names)}
+    zero = np.zeros(len(q))
+    a = col.get("A", zero)
+    xyz = np.stack([col["X"], col["Y"], col["Z"]], axis=1) + final_pose[:3, 3]
+    position = np.einsum("nij,nj->ni", _rot_x(a)[:, :3, :3], xyz)
+    return state_poses(final_pose, position, a, col["C"], col.get("B"))

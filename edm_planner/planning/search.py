@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 
 import numpy as np
+from scipy.optimize import linprog
 
 from ..errors import ErrorCode
 from ..interference import SURFACES
@@ -73,6 +74,8 @@ class SearchOptions:
     time_budget: float = 60.0
     max_nodes: int = 5000
     search_points: int = 1500                # electrode sample points used while searching
+    search_allowance: float = 0.01           # mm added to the margins while searching: the vertices
+                                             # between the search points may come a little closer
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -85,7 +88,7 @@ class SearchOptions:
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
-        for name in ("margin_hub_shroud", "margin_blade"):
+        for name in ("margin_hub_shroud", "margin_blade", "search_allowance"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"{name} must be >= 0 mm, got {v!r}")
@@ -109,6 +112,15 @@ class SearchResult:
     blocking_clearance: float = float("nan")
     furthest_reference: float = 0.0
     elapsed: float = 0.0
+
+
+def _feature_vertices(mesh, angle=0.5, limit=3000):
+    """Vertices on the mesh's sharp edges (dihedral angle above ``angle`` rad), at most ``limit``."""
+    sharp = mesh.face_adjacency_edges[mesh.face_adjacency_angles > angle]
+    idx = np.unique(sharp)
+    if len(idx) > limit:
+        idx = idx[np.linspace(0, len(idx) - 1, limit).astype(int)]
+    return np.asarray(mesh.vertices)[idx]
 
 
 class ExitSearch:
@@ -144,16 +156,21 @@ class ExitSearch:
             idx = np.sort(rng.choice(len(pts), size=min(keep, len(pts)), replace=False))
             self.points.append(pts[idx])
             self.labels.append(np.full(len(idx), i))
+        # the electrode's edges and corners: where a turning electrode first comes close to a wall
+        edges = _feature_vertices(electrode.mesh)
+        self.points.append(edges)
+        self.labels.append(np.full(len(edges), 4))
         self.points = np.vstack(self.points)
         self.labels = np.concatenate(self.labels)
-        self.margins = np.array([o.margin_blade, o.margin_blade, o.margin_hub_shroud, o.margin_hub_shroud])
+        self.required = np.array([o.margin_blade, o.margin_blade, o.margin_hub_shroud, o.margin_hub_shroud])
+        self.margins = self.required + o.search_allowance
         self.bound = float(getattr(field, "error_bound", 0.0))
         self.evaluations = 0
         x0, x1 = blisk.axial_range
         self.blisk_x = (x0, x1)
         # free-variable step bounds: lateral [mm] (per unit step), angles [rad]
         self.scale = np.array([o.lateral_ratio, o.lateral_ratio] + [o.angle_step] * (self.k - 2))
-        self.barrier = 0.01
+        self.cushion = np.inf
 
     # -- evaluation of candidate states ---------------------------------------------
     def _poses(self, states):
@@ -224,12 +241,6 @@ class ExitSearch:
         f1 = smoothness(incr, prev_incr, 2 * self.scale, sw)
         f2 = margin(d[:, self.labels == 0, 0], d[:, self.labels == 1, 1], w.margin)
         total = w.total[0] * f1 + w.total[1] * f2
-        if o.method == "default":
-            # beyond the paper: a log barrier on all four slacks keeps the electrode off the
-            # hub and shroud too (Objfun2 only balances the blades), so the search does not
-            # hug a wall at exactly the margin and jam one node later
-            slack = np.maximum(d.min(axis=1) - self.margins - self.bound, 1e-9)
-            total = total - self.barrier * np.log(slack / (slack + 1.0)).sum(axis=1)
         return total, f1, f2
 
     def _free_travel(self, states, step, frame, limit=40):
@@ -251,26 +262,113 @@ class ExitSearch:
     # -- one node ------------------------------------------------------------------------
     def _solve_node(self, state, prev_incr, step, frame):
         o = self.options
-        rng = self._rng
         if o.method == "ga":
-            lower, upper = -self.scale, self.scale
-            precision = np.full(self.k, 1e-3) * np.maximum(self.scale, 1e-3) / np.maximum(self.scale.max(), 1e-9)
+            return self._solve_node_ga(state, prev_incr, step, frame)
+        if o.method in ("default", "max_min_distance"):
+            return self._solve_node_lp(state, prev_incr, step, frame)
+        return self._solve_node_pattern(state, prev_incr, step, frame)
 
-            def feasible(x):
-                return self._assess(self._candidates(state, x, step, frame))[2]
+    def _slack(self, states):
+        """(n, m, 4) slack of every search point to every surface: clearance - margin - field bound."""
+        return self._distances(states) - self.margins - self.bound
 
-            def objective(x):
-                d = self._distances(self._candidates(state, x, step, frame))
-                return self._objective(d, x, prev_incr)[0]
+    def _solve_node_lp(self, state, prev_incr, step, frame, iterations=5):
+        """Sequential linear programming on the free increments.
 
-            try:
-                res = minimize_ga(objective, feasible, lower, upper, precision,
-                                  GAOptions(population_size=24, generations=20, seed=int(rng.integers(1 << 31)),
-                                            max_init_attempts=600),
-                                  seeds=[np.clip(prev_incr, lower, upper)])
-            except NoFeasibleStart:
-                return None
-            return res.x
+        Linearise every near-critical point clearance in the free increments
+        (central differences on the fast field), then one LP (HiGHS): raise the
+        smallest slack up to the cushion -- the slack the electrode has at its
+        machining pose -- and, among those increments, take the one closest to
+        the previous node's (Huang's Objfun1). ``max_min_distance`` raises the
+        smallest slack without a cap (Ayesta 2016). Re-linearise at the
+        solution until the fast field confirms it feasible.
+        """
+        o = self.options
+        k = self.k
+        x0 = np.clip(prev_incr, -self.scale, self.scale)
+        cap = np.inf if o.method == "max_min_distance" else self.cushion
+        rho = 0.5 * self.scale
+        sw = np.array(list(o.weights.smoothness[:2]) + [o.weights.smoothness[2] / (k - 2)] * (k - 2))
+        cost_f1 = sw / (2 * self.scale)
+        eps = 1e-3 * self.scale
+        feasible = []                                      # (x, smallest slack)
+        for it in range(iterations + 1):
+            trial = np.vstack([x0, x0 + np.diag(eps), x0 - np.diag(eps)])
+            slack = self._slack(self._candidates(state, trial, step, frame)).reshape(2 * k + 1, -1)
+            s0 = slack[0]
+            if s0.min() >= 0:
+                feasible.append((x0, float(s0.min())))
+                if it > 0 and o.method != "max_min_distance":
+                    break                                  # the LP's step, confirmed by the field
+            if it == iterations:
+                break
+            jac = ((slack[1:k + 1] - slack[k + 1:]) / (2 * eps[:, None])).T                   # (m, k)
+            # near-critical constraints: those a move within the trust region can bring down to the minimum
+            reach = np.abs(jac) @ (2.0 * rho)
+            active = np.nonzero(s0 - reach <= s0.min() + 1e-3)[0]
+            if len(active) > 800:
+                active = active[np.argsort(s0[active] - reach[active])[:800]]
+            x = self._lp_step(s0[active], jac[active], x0, prev_incr, rho, cap, cost_f1, o.method)
+            if x is None or np.allclose(x, x0, rtol=0, atol=1e-7):
+                break
+            x0 = x
+        if not feasible:
+            return None
+        # most slack up to the cushion, then the smoothest
+        f1 = [float(cost_f1 @ np.abs(x - prev_incr)) for x, _ in feasible]
+        i = min(range(len(feasible)), key=lambda j: (-round(min(feasible[j][1], cap), 4), f1[j]))
+        return feasible[i][0]
+
+    def _lp_step(self, s0, jac, x0, prev, rho, cap, cost_f1, method):
+        """One LP: variables [dx (k), p (k), q (k), t]; x = x0 + dx, x - prev = p - q, s0 + J dx >= t."""
+        k = self.k
+        lo = np.maximum(-rho, -self.scale - x0)
+        hi = np.minimum(rho, self.scale - x0)
+        c = np.zeros(3 * k + 1)
+        if method == "max_min_distance":
+            c[k:3 * k] = 1e-6 * np.tile(cost_f1, 2)
+            c[-1] = -1.0
+        else:
+            c[k:3 * k] = np.tile(cost_f1, 2)
+            c[-1] = -100.0                                 # clearance up to the cushion first
+        a_ub = np.zeros((len(s0), 3 * k + 1))
+        a_ub[:, :k] = -jac
+        a_ub[:, -1] = 1.0
+        a_eq = np.zeros((k, 3 * k + 1))
+        a_eq[:, :k] = np.eye(k)
+        a_eq[:, k:2 * k] = -np.eye(k)
+        a_eq[:, 2 * k:3 * k] = np.eye(k)
+        bounds = [(lo[j], hi[j]) for j in range(k)] + [(0, None)] * (2 * k) + \
+                 [(None, None if not np.isfinite(cap) else cap)]
+        res = linprog(c, A_ub=a_ub, b_ub=s0, A_eq=a_eq, b_eq=prev - x0, bounds=bounds, method="highs")
+        if res.status != 0:
+            return None
+        return x0 + res.x[:k]
+
+    def _solve_node_ga(self, state, prev_incr, step, frame):
+        rng = self._rng
+        lower, upper = -self.scale, self.scale
+        precision = np.full(self.k, 1e-3) * np.maximum(self.scale, 1e-3) / np.maximum(self.scale.max(), 1e-9)
+
+        def feasible(x):
+            return self._assess(self._candidates(state, x, step, frame))[2]
+
+        def objective(x):
+            d = self._distances(self._candidates(state, x, step, frame))
+            return self._objective(d, x, prev_incr)[0]
+
+        try:
+            res = minimize_ga(objective, feasible, lower, upper, precision,
+                              GAOptions(population_size=24, generations=20, seed=int(rng.integers(1 << 31)),
+                                        max_init_attempts=600),
+                              seeds=[np.clip(prev_incr, lower, upper)])
+        except NoFeasibleStart:
+            return None
+        return res.x
+
+    def _solve_node_pattern(self, state, prev_incr, step, frame):
+        o = self.options
+        rng = self._rng
         # default and baselines: vectorised pattern search around the warm start
         best = np.clip(prev_incr, -self.scale, self.scale)
         spread = 0.25 * self.scale
@@ -310,15 +408,17 @@ class ExitSearch:
         self._rng = np.random.default_rng(o.seed)
         start = np.zeros(3 + (self.k - 2))
         start[:3] = self.electrode.final_pose[:3, 3]
-        d0, m0, ok0 = self._assess(start[None])
-        if not ok0[0]:
-            j = int(np.argmin(m0[0] - self.margins))
+        d0, m0, _ = self._assess(start[None])
+        if not (m0[0] - self.bound >= self.required).all():
+            j = int(np.argmin(m0[0] - self.required))
             return SearchResult(SearchStatus.START_IN_COLLISION,
                                 f"the electrode at its final pose is {m0[0, j]:.4f} mm from the {SURFACES[j]} "
-                                f"surface, below the margin {self.margins[j]:.4f} mm (+ field bound "
+                                f"surface, below the margin {self.required[j]:.4f} mm (+ field bound "
                                 f"{self.bound * 1e3:.1f} um)", start[None], m0, evaluations=self.evaluations,
                                 blocking_surface=SURFACES[j], blocking_clearance=float(m0[0, j]),
                                 elapsed=time.perf_counter() - t0)
+        # the default method keeps, where the channel allows, the slack the electrode has at its machining pose
+        self.cushion = float(min((m0[0] - self.margins - self.bound).min(), 0.5))
         sides = {"downstream": [1], "upstream": [-1], "auto": [1, -1]}[o.exit_side]
         results = [self._run_side(start, m0[0], side, t0, progress) for side in sides]
         done = [r for r in results if r.status == SearchStatus.SUCCESS]

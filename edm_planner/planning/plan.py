@@ -1,0 +1,130 @@
+"""The result of planning one channel: a certified, densely sampled axis path.
+
+A :class:`Plan` is what the planner returns, what the trajectory_planner node
+serves and publishes, what ``edm-plan plan`` exports and what the axis bridge
+times. Axis values are machine axis values (X, Y, Z [mm], A, C(, B) [rad])
+in feed order: the first sample is the start pose outside the blisk, the last
+the final machining pose in the plan's channel (A includes channel * pitch).
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ErrorCode
+from ..interference import SURFACES
+from .search import SearchOptions
+
+#: axis names per machine configuration (the free axes of the search, plus X, Y, Z)
+AXIS_NAMES = {4: ("X", "Y", "Z", "C"), 5: ("X", "Y", "Z", "A", "C"), 6: ("X", "Y", "Z", "A", "C", "B")}
+
+
+@dataclass(frozen=True)
+class PlanOptions:
+    """Settings of a channel plan (mm, rad, s).
+
+    Attributes
+    ----------
+    search : SearchOptions
+        The exit search (method, reference, axes, step, margins, weights, seed, time budget).
+    sample_spacing : float
+        Largest move of any electrode vertex between consecutive samples of the plan [mm].
+    size_electrode : bool
+        Search the smallest circumferential reduction h with a certified path (bisection).
+    sizing_tolerance : float
+        Bracket width at which the sizing stops [rad].
+    """
+
+    search: SearchOptions = field(default_factory=SearchOptions)
+    sample_spacing: float = 0.05
+    size_electrode: bool = False
+    sizing_tolerance: float = 0.002
+
+    def __post_init__(self):
+        for name in ("sample_spacing", "sizing_tolerance"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v <= 0:
+                raise ValueError(f"{name} must be a positive number, got {v!r}")
+
+
+@dataclass
+class PlanMetrics:
+    """Figures of a plan (PlanMetrics.msg). Units: mm, rad, s."""
+
+    node_count: int = 0
+    path_length: float = 0.0                     # mm, path of the electrode origin
+    min_clearance: tuple = (float("nan"),) * 4   # mm per surface (order of SURFACES) along the certified path
+    objfun1: float = 0.0                         # Huang eq. 4, summed over nodes
+    objfun2: float = 0.0                         # Huang eq. 5, summed over nodes
+    axis_names: tuple = ()
+    smoothness: tuple = ()                       # per axis: sum of squared second differences at the nodes
+    sharp_points: tuple = ()                     # per axis: sign changes of the axis velocity
+    solver_evaluations: int = 0
+    planning_time: float = 0.0                   # s
+    certified: bool = False
+    circumferential_reduction: float = 0.0       # rad
+
+    @property
+    def min_clearance_by_surface(self):
+        return dict(zip(SURFACES, self.min_clearance))
+
+    def to_dict(self):
+        d = {k: getattr(self, k) for k in self.__dataclass_fields__}
+        d["min_clearance"] = {s: float(v) for s, v in zip(SURFACES, self.min_clearance)}
+        for k in ("axis_names", "smoothness", "sharp_points"):
+            d[k] = list(d[k])
+        return d
+
+
+@dataclass
+class Plan:
+    """A channel plan, or why there is none.
+
+    Attributes
+    ----------
+    plan_id : str
+    error_code : ErrorCode
+        SUCCESS only for a certified plan.
+    message : str
+    geometry_id : str
+    channel : int
+    electrode_id : str
+    electrode_mesh : trimesh.Trimesh
+        The exact mesh that was checked, in the electrode frame [mm].
+    final_pose : (4, 4) float
+        Electrode frame -> W at the machining pose in channel 0.
+    options : PlanOptions
+    axis_names : tuple of str
+    samples : (N, k) float
+        Axis values in feed order, dense (``options.sample_spacing``).
+    poses : (N, 4, 4) float
+        Electrode frame -> W for each sample, in the plan's channel.
+    nodes : (n, k) float
+        Axis values of the search nodes, feed order.
+    metrics : PlanMetrics
+    furthest_node, furthest_reference, blocking_surface, blocking_clearance
+        On failure: how far the search got [nodes, mm] and what blocked it [mm].
+    """
+
+    plan_id: str
+    error_code: ErrorCode
+    message: str
+    geometry_id: str
+    channel: int
+    electrode_id: str
+    electrode_mesh: object
+    final_pose: np.ndarray
+    options: PlanOptions
+    axis_names: tuple
+    samples: np.ndarray
+    poses: np.ndarray
+    nodes: np.ndarray
+    metrics: PlanMetrics
+    furthest_node: int = 0
+    furthest_reference: float = 0.0
+    blocking_surface: str = ""
+    blocking_clearance: float = float("nan")
+
+    @property
+    def success(self):
+        return self.error_code == ErrorCode.SUCCESS
