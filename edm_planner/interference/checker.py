@@ -4,8 +4,9 @@ Methods (mirrored by CheckInterference.srv's METHOD_* constants):
 
 * EXACT -- exact signed distances of the electrode's vertices to the model
   surfaces. With a fast field available only the vertices that can attain the
-  minimum (fast value within twice its error bound of the fast minimum) are
-  evaluated exactly, which gives the same minimum at a fraction of the cost.
+  minimum (field value within its error bounds of the smallest exact value
+  found) are evaluated exactly, by the field's numba solvers, which gives the
+  same minimum at a fraction of the cost.
 * FAST -- the distance field; a pose counts as colliding whenever its
   clearance is below the threshold plus the field's error bound, so no pose
   is accepted as clear on the fast method alone inside its error band.
@@ -21,7 +22,7 @@ from enum import IntEnum
 import numpy as np
 
 from ..errors import EdmError, ErrorCode
-from .exact_points import ExactChannelDistance, pose_clearances, transform_points
+from .exact_points import ExactChannelDistance, pose_clearances
 from .segment import certify_segment, screw_motion
 
 _log = logging.getLogger(__name__)
@@ -151,31 +152,31 @@ class ChannelChecker:
             return self.mesh.clearances(mesh, poses, channel).min(axis=1) - self.mesh.faceting_bound
         return self.exact_pose_clearances(poses, points, channel)[0].min(axis=1)
 
-    def exact_pose_clearances(self, poses, points, channel, chunk_points=2_000_000):
-        """Exact per-surface minima over the points, evaluating only the candidates when a fast field exists.
+    def exact_pose_clearances(self, poses, points, channel):
+        """Exact per-surface minima over the points and the points attaining them.
 
-        Poses are processed in chunks of about ``chunk_points`` electrode points so
-        that memory stays bounded for long plans.
+        With a fast field: its numba branch and bound, which solves exactly
+        (numba solvers) only the points whose field value lies within the
+        field's error bounds of the smallest exact value found. Without one:
+        ``ExactChannelDistance`` on every point.
         """
         if self._fast is None:
             return pose_clearances(self.exact.clearances, poses, points, channel)
-        M = len(points)
-        step = max(1, chunk_points // max(M, 1))
-        mins, args = [], []
-        for start in range(0, len(poses), step):
-            world = transform_points(poses[start:start + step], points)
-            P = len(world)
-            fast = self.fast.clearances(world.reshape(-1, 3), channel).reshape(P, M, 4)
-            # the field's bound holds within 2 mm of a surface; farther out only its far bound does
-            fmin = fast.min(axis=1, keepdims=True)
-            bound = np.where(fmin < 2.0, self.fast.error_bound, getattr(self.fast, "far_error_bound", np.inf))
-            cutoff = fmin + 2 * bound + 1e-9
-            idx = np.nonzero((fast <= cutoff).any(axis=2))      # points that may attain some minimum
-            exact = np.full((P, M, 4), np.inf)
-            exact[idx] = self.exact.clearances(world[idx], channel)
-            mins.append(exact.min(axis=1))
-            args.append(exact.argmin(axis=1))
-        return np.concatenate(mins), np.concatenate(args)
+        minimum, argmin, _ = self._fast.exact_pose_clearances(poses, points, channel)
+        return minimum, argmin
+
+    def closest_pairs(self, poses, points, argmin, channel):
+        """(P, 4, 2, 3) [electrode point, surface point] in W for the points attaining the minima."""
+        P = len(poses)
+        R, t = poses[:, :3, :3], poses[:, :3, 3]
+        pts = np.einsum("pij,pkj->pki", R, points[argmin]) + t[:, None]        # (P, 4, 3)
+        _, feet = self.exact.clearances(pts.reshape(-1, 3), channel, closest=True)
+        feet = feet.reshape(P, 4, 4, 3)[:, np.arange(4), np.arange(4)]
+        if self._fast is not None:
+            # the blade feet from the numba solver that gave the distances (ExactChannelDistance can stop short)
+            _, blade = self._fast.exact_blade_feet(pts[:, :2].reshape(-1, 3), channel)
+            feet[:, :2] = blade.reshape(P, 2, 2, 3)[:, np.arange(2), np.arange(2)]
+        return np.stack([pts, feet], axis=2)
 
     def check(self, poses, channel=0, electrode_id="", method=Method.EXACT, threshold=0.0,
               closest=False, segments=False):
@@ -221,11 +222,7 @@ class ChannelChecker:
                 bound = 0.0
             colliding = clear.min(axis=1) < threshold + bound
             if closest:
-                world = transform_points(poses, points)
-                pts = world[np.arange(len(poses))[:, None], arg]          # (P, 4, 3)
-                _, feet = self.exact.clearances(pts.reshape(-1, 3), channel, closest=True)
-                feet = feet.reshape(len(poses), 4, 4, 3)[:, np.arange(4), np.arange(4)]
-                pairs = np.stack([pts, feet], axis=2)
+                pairs = self.closest_pairs(poses, points, arg, channel)
         result = CheckResult(clear, colliding, float(bound), pairs)
         if segments and method != Method.PAPER_CRITERIA:
             ends = clear.min(axis=1) - bound

@@ -64,7 +64,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from . import SURFACES
-from ..geometry.frames import cylindrical_to_cartesian
+from ..geometry.frames import cylindrical_to_cartesian, rotation_about_x
 from .exact_points import ExactChannelDistance
 
 _log = logging.getLogger(__name__)
@@ -77,6 +77,8 @@ ACCURATE_WITHIN = 2.0
 _TWO_PI = 2.0 * math.pi
 #: Newton steps shorter than this [mm] end the projection with the model decrease
 _NEWTON_TOL = 3e-4
+#: the exact blade solver tries a grid of starts for points farther than this from the face [mm]
+_FAR_START = 2.0
 
 
 def _atan_coefficients(half_range=0.5, degree=10):
@@ -974,7 +976,14 @@ def _nearest_start(face, x, rho, samples, scale, box, start, items):
 
 @numba.njit(cache=True)
 def _exact_blade(face, x, rho, th, fp, ip, slow, work):
-    """Exact signed distance of (x, rho, th) (channel-0 angle) to a wall: the slow path.
+    """Exact signed distance of (x, rho, th) (channel-0 angle) to a wall: the slow path."""
+    d, _, _ = _exact_blade_uv(face, x, rho, th, fp, ip, slow, work)
+    return d
+
+
+@numba.njit(cache=True)
+def _exact_blade_uv(face, x, rho, th, fp, ip, slow, work):
+    """Exact signed distance of (x, rho, th) (channel-0 angle) to a wall and its foot's (u, v).
 
     The sign rule as in the fill; the closest point from the nearest coarse
     node's, checked against the other corners' where the coarse cell is
@@ -1045,9 +1054,18 @@ def _exact_blade(face, x, rho, th, fp, ip, slow, work):
     if _on_edge(u, v) != 0:
         u2, v2, f2 = _project(cp, tu, tv, px, py, pz, min(max(u, 0.03), 0.97), min(max(v, 0.03), 0.97), work,
                               _NEWTON_TOL, 80)
-        f = min(f, f2)
+        if f2 < f:
+            u, v, f = u2, v2, f2
+    if f > _FAR_START * _FAR_START:
+        # beyond the band the coarse nodes' closest points can lie on another local minimum: a grid of starts
+        for i in range(5):
+            for j in range(5):
+                u2, v2, f2 = _project_edge(cp, tu, tv, px, py, pz, 0.1 + 0.2 * i, 0.1 + 0.2 * j, work,
+                                           _NEWTON_TOL, 80)
+                if f2 < f:
+                    u, v, f = u2, v2, f2
     d = math.sqrt(f)
-    return -d if _behind(face, th_w, th_face, in_face, pitch) else d
+    return (-d if _behind(face, th_w, th_face, in_face, pitch) else d), u, v
 
 
 @numba.njit(cache=True, inline="always")
@@ -1265,6 +1283,106 @@ def _pose_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow)
                 best[q, 0], best[q, 1], best[q, 2], best[q, 3] = b0, b1, b2, b3
                 arg[q, 0], arg[q, 1], arg[q, 2], arg[q, 3] = a0, a1, a2, a3
     return best, arg
+
+
+@numba.njit(cache=True)
+def _exact_surface(s, x, rho, th, fp, ip, slow, work):
+    """Exact signed distance to surface s (0 suction, 1 pressure, 2 hub, 3 shroud); th in channel 0."""
+    if s < 2:
+        return _exact_blade(s, x, rho, th, fp, ip, slow, work)
+    if s == 2:
+        return _profile_signed(slow[11], slow[12], slow[13], 1.0, x, rho)
+    return _profile_signed(slow[14], slow[15], slow[16], -1.0, x, rho)
+
+
+@numba.njit(cache=True)
+def _exact_pose_kernel(poses, points, channel_angle, near_bound, far_bound, flat, hs, fpt, ipt, fp, ip, slow):
+    """Per pose the exact minimum of each surface's signed distance over the points (branch and bound).
+
+    Per point the field gives a lower bound of the exact distance: its value
+    minus ``near_bound`` where it is certainly within 2 mm of the surface,
+    minus ``far_bound`` elsewhere inside the tables, the value itself outside
+    them (there it is a lower bound already). Per surface the point with the
+    lowest bound is solved exactly first; every other point is solved only
+    while its bound does not exceed the smallest exact value found so far, so
+    the result is the exact minimum over all points whatever the order.
+
+    Returns
+    -------
+    best : (P, 4) float, arg : (P, 4) int, solved : (P,) int (exact solves per pose)
+    """
+    n_pose, n_pt = poses.shape[0], points.shape[0]
+    best = np.full((n_pose, 4), np.inf)
+    arg = np.zeros((n_pose, 4), dtype=np.int64)
+    solved = np.zeros(n_pose, dtype=np.int64)
+    world = np.empty((n_pt, 3))
+    low = np.empty((n_pt, 4))
+    work = _new_work()
+    nx, nr, nt, nhx, nhr = ip[_NX], ip[_NR], ip[_NT], ip[_NHX], ip[_NHR]
+    sure_near = ACCURATE_WITHIN - far_bound       # |value| below this: |exact| <= 2 mm
+    for q in range(n_pose):
+        first = np.zeros(4, dtype=np.int64)
+        lmin = np.full(4, np.inf)
+        for k in range(n_pt):
+            ex, ey, ez = points[k, 0], points[k, 1], points[k, 2]
+            x = poses[q, 0, 0] * ex + poses[q, 0, 1] * ey + poses[q, 0, 2] * ez + poses[q, 0, 3]
+            y = poses[q, 1, 0] * ex + poses[q, 1, 1] * ey + poses[q, 1, 2] * ez + poses[q, 1, 3]
+            z = poses[q, 2, 0] * ex + poses[q, 2, 1] * ey + poses[q, 2, 2] * ez + poses[q, 2, 3]
+            world[k, 0], world[k, 1], world[k, 2] = x, y, z
+            s, p, h, c, ok = _fast_point(x, y, z, flat, hs, fpt, ipt)
+            in_grid, in_table = True, True
+            if not ok:
+                s, p, h, c = _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work)
+                rho = math.sqrt(y * y + z * z)
+                th = math.atan2(z, y) - channel_angle
+                th -= _TWO_PI * math.floor((th - fp[_TC] + math.pi) / _TWO_PI)
+                gx, gr, gt = (x - fp[_X0]) / fp[_HX], (rho - fp[_R0]) / fp[_HR], (th - fp[_T0]) / fp[_HT]
+                in_grid = 0.0 <= gx <= nx - 1 and 0.0 <= gr <= nr - 1 and 0.0 <= gt <= nt - 1
+                hx, hr = (x - fp[_HX0]) / fp[_HHX], (rho - fp[_HR0]) / fp[_HHR]
+                in_table = 0.0 <= hx <= nhx - 1 and 0.0 <= hr <= nhr - 1
+            vals = (s, p, h, c)
+            for j in range(4):
+                v = vals[j]
+                inside = in_grid if j < 2 else in_table
+                if inside:
+                    v -= near_bound if abs(v) <= sure_near else far_bound
+                low[k, j] = v
+                if v < lmin[j]:
+                    lmin[j], first[j] = v, k
+        for j in range(4):
+            ub, a = np.inf, first[j]
+            for step in range(n_pt + 1):
+                k = first[j] if step == 0 else step - 1
+                if (step > 0 and k == first[j]) or low[k, j] > ub:
+                    continue
+                x, y, z = world[k, 0], world[k, 1], world[k, 2]
+                rho = math.sqrt(y * y + z * z)
+                th = math.atan2(z, y) - channel_angle
+                th -= _TWO_PI * math.floor((th - fp[_TC] + math.pi) / _TWO_PI)
+                d = _exact_surface(j, x, rho, th, fp, ip, slow, work)
+                solved[q] += 1
+                if d < ub:
+                    ub, a = d, k
+            best[q, j], arg[q, j] = ub, a
+    return best, arg, solved
+
+
+@numba.njit(cache=True)
+def _exact_blade_feet(points, channel_angle, fp, ip, slow):
+    """Exact signed distances to both walls and the feet's (u, v): (n, 2), (n, 2, 2)."""
+    n = points.shape[0]
+    dist = np.empty((n, 2))
+    uv = np.empty((n, 2, 2))
+    work = _new_work()
+    for k in range(n):
+        x, y, z = points[k, 0], points[k, 1], points[k, 2]
+        rho = math.sqrt(y * y + z * z)
+        th = math.atan2(z, y) - channel_angle
+        th -= _TWO_PI * math.floor((th - fp[_TC] + math.pi) / _TWO_PI)
+        for face in range(2):
+            d, u, v = _exact_blade_uv(face, x, rho, th, fp, ip, slow, work)
+            dist[k, face], uv[k, face, 0], uv[k, face, 1] = d, u, v
+    return dist, uv
 
 
 # ===========================================================================
@@ -1661,6 +1779,61 @@ class FastChannelField:
         if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
             raise ValueError(f"pose_clearances: points must be (M, 3) with M >= 1, got {pts.shape}")
         return _pose_kernel(poses, pts, float(channel) * self.blisk.pitch, *self._kernel_args(channel))
+
+    def exact_pose_clearances(self, poses, points, channel=0):
+        """Per pose and surface: the exact minimum signed distance over the electrode points.
+
+        The field prunes (``_exact_pose_kernel``): only points whose field value
+        is within the field's error bounds of the smallest exact value found
+        are solved exactly, by the numba solvers of ``exact_blade_distances``
+        and ``exact_profile_distances``; the result is the exact minimum over
+        all points.
+
+        Parameters
+        ----------
+        poses : (P, 4, 4) float
+            Electrode frame -> W.
+        points : (M, 3) float
+            In the electrode frame [mm].
+        channel : int
+
+        Returns
+        -------
+        minimum : (P, 4) float
+            [mm], columns in the order of ``SURFACES``.
+        argmin : (P, 4) int
+        solved : (P,) int
+            Exact solves per pose (the pruning's cost).
+        """
+        poses = np.ascontiguousarray(np.asanyarray(poses, dtype=np.float64).reshape(-1, 4, 4))
+        pts = np.ascontiguousarray(np.atleast_2d(np.asanyarray(points, dtype=np.float64)))
+        if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
+            raise ValueError(f"exact_pose_clearances: points must be (M, 3) with M >= 1, got {pts.shape}")
+        far = float(getattr(self, "far_error_bound", np.inf))
+        far = max(far, self.error_bound) if np.isfinite(far) else np.inf     # unknown: prune nothing
+        return _exact_pose_kernel(poses, pts, float(channel) * self.blisk.pitch, float(self.error_bound), far,
+                                  *self._kernel_args(channel))
+
+    def exact_blade_feet(self, points, channel=0):
+        """Exact signed distances to the two walls (as ``exact_blade_distances``) and their closest points.
+
+        Returns
+        -------
+        distances : (n, 2) float
+            [mm], suction and pressure wall.
+        feet : (n, 2, 3) float
+            The closest points on the walls, in W [mm].
+        """
+        p = np.ascontiguousarray(np.atleast_2d(np.asanyarray(points, dtype=np.float64)))
+        args = self._kernel_args(channel)
+        dist, uv = _exact_blade_feet(p, float(channel) * self.blisk.pitch, *args[4:])
+        feet = np.empty((len(p), 2, 3))
+        for face, cp in enumerate((self.blisk.suction_face, self.blisk.pressure_face)):
+            s = cp.surface
+            local = spline_surface_eval(s.control_points, s.knots_u, s.knots_v, uv[:, face, 0], uv[:, face, 1])[:, 0]
+            # blade 0's face -> the wall of channel k (the pressure wall is blade k+1's)
+            feet[:, face] = local @ rotation_about_x((channel + face) * self.blisk.pitch)[:3, :3].T
+        return dist, feet
 
     def fast_path(self, points, channel=0):
         """Which points are answered from the tables alone (no exact solve, inside both tables).
