@@ -56,6 +56,23 @@ def pose_to_matrix(pose):
     return m
 
 
+def poses_to_arrays(poses):
+    """geometry_msgs/Pose list -> quaternions (n, 4) [x, y, z, w] and positions (n, 3) [mm], one pass."""
+    flat = np.array([(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w,
+                      p.position.x, p.position.y, p.position.z) for p in poses], dtype=np.float64).reshape(-1, 7)
+    return flat[:, :4], flat[:, 4:]
+
+
+def quaternions_to_matrices(quats, positions):
+    """Quaternions (n, 4) [x, y, z, w] and positions (n, 3) -> (n, 4, 4) transforms, vectorised."""
+    m = np.zeros((len(quats), 4, 4))
+    if len(quats):
+        m[:, :3, :3] = Rotation.from_quat(quats).as_matrix()
+    m[:, :3, 3] = positions
+    m[:, 3, 3] = 1.0
+    return m
+
+
 def summary_to_msg(summary):
     """Core summary dict -> GeometrySummary."""
     msg = GeometrySummary()

@@ -39,7 +39,7 @@ from ..geometry.blisk import Blisk
 from ..interference.checker import ChannelChecker, CheckerOptions, Method
 from ..machine.kinematics import AXES_5, FiveAxisKinematics
 from .runtime import spin_node
-from .conversions import error_code, msg_to_mesh, pose_to_matrix
+from .conversions import error_code, msg_to_mesh, pose_to_matrix, poses_to_arrays, quaternions_to_matrices
 from .geometry_loader import LATCHED
 
 
@@ -134,15 +134,17 @@ class InterferenceCheckerNode(Node):
                                method=method, threshold=request.threshold,
                                closest=request.closest_points and method != Method.PAPER_CRITERIA,
                                segments=request.segments)
-        for i in range(len(poses)):
-            c = SurfaceClearance()
-            c.suction, c.pressure, c.hub, c.shroud = (float(v) for v in result.clearances[i])
-            c.minimum = float(np.min(result.clearances[i]))
-            c.colliding = bool(result.colliding[i])
-            if result.closest is not None:
-                c.electrode_points = [Point(x=float(a), y=float(b), z=float(d)) for a, b, d in result.closest[i, :, 0]]
-                c.surface_points = [Point(x=float(a), y=float(b), z=float(d)) for a, b, d in result.closest[i, :, 1]]
-            response.clearances.append(c)
+        # one conversion to Python floats for the whole batch, then plain constructors
+        clear = result.clearances.tolist()
+        minimum = np.min(result.clearances, axis=1).tolist()
+        colliding = result.colliding.tolist()
+        out = [SurfaceClearance(suction=a, pressure=b, hub=h, shroud=s, minimum=m, colliding=k)
+               for (a, b, h, s), m, k in zip(clear, minimum, colliding)]
+        if result.closest is not None:
+            for c, pairs in zip(out, result.closest.tolist()):
+                c.electrode_points = [Point(x=x, y=y, z=z) for x, y, z in (pair[0] for pair in pairs)]
+                c.surface_points = [Point(x=x, y=y, z=z) for x, y, z in (pair[1] for pair in pairs)]
+        response.clearances = out
         for seg in result.segments:
             response.segment_checks.append(SegmentCheck(
                 certified=seg.certified, first_contact=float(seg.first_contact),
@@ -166,19 +168,18 @@ class InterferenceCheckerNode(Node):
             if not np.isfinite(q).all():
                 raise EdmError(ErrorCode.INVALID_REQUEST, "axis values contain NaN or infinite values")
             return FiveAxisKinematics(final_pose, checker.blisk.pitch).forward(q)
-        poses = []
-        for i, p in enumerate(request.poses):
-            q = np.array([p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w])
-            t = np.array([p.position.x, p.position.y, p.position.z])
-            if not (np.isfinite(q).all() and np.isfinite(t).all()):
-                raise EdmError(ErrorCode.INVALID_REQUEST, f"pose {i} contains NaN or infinite values")
-            if abs(np.linalg.norm(q) - 1.0) > 1e-6:
-                raise EdmError(ErrorCode.INVALID_REQUEST,
-                               f"pose {i}: quaternion is not unit (norm {np.linalg.norm(q):.6g})")
-            poses.append(pose_to_matrix(p))
-        if not poses:
+        if not request.poses:
             raise EdmError(ErrorCode.INVALID_REQUEST, "no poses given")
-        return np.stack(poses)
+        quats, positions = poses_to_arrays(request.poses)
+        finite = np.isfinite(quats).all(axis=1) & np.isfinite(positions).all(axis=1)
+        norm = np.linalg.norm(quats, axis=1)
+        bad = np.flatnonzero(~finite | (np.abs(norm - 1.0) > 1e-6))
+        if len(bad):
+            i = int(bad[0])                 # the first bad pose, as a loop over them would report it
+            if not finite[i]:
+                raise EdmError(ErrorCode.INVALID_REQUEST, f"pose {i} contains NaN or infinite values")
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"pose {i}: quaternion is not unit (norm {norm[i]:.6g})")
+        return quaternions_to_matrices(quats, positions)
 
 
 def main(args=None):
