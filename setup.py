@@ -12,6 +12,7 @@ PACKAGE = "edm_planner"
 NODES = {
     "geometry_loader": "edm_planner.nodes.geometry_loader:main",
     "interference_checker": "edm_planner.nodes.interference_checker:main",
+    "trajectory_planner": "edm_planner.nodes.trajectory_planner:main",
 }
 
 setup(

@@ -1,0 +1,265 @@
+"""trajectory_planner node: certified channel plans over DDS.
+
+Builds its models from the geometry_loader's latched ``geometry`` topic (the
+exact blisk and the electrode design in ``model_json``; electrodes are
+re-designed here because the search needs their labelled surface samples)
+and serves ``plan_channel`` (edm_planner_msgs/PlanChannel).
+
+Topics: ``plan`` (edm_planner_msgs/ChannelPlan, TRANSIENT_LOCAL, the latest
+certified plan), ``plan_progress`` (edm_planner_msgs/PlanProgress, while
+planning).
+
+Parameters
+----------
+cache_dir : str
+    Directory of cached distance fields ('' : ~/.cache/edm_planner).
+fast_spacing : float
+    Distance-field spacing [mm].
+time_budget : float
+    Default time budget of a request [s] (PlannerSettings.time_budget 0 or NaN).
+export_dir : str
+    Where ``write_export`` requests write plan exports ('' : ~/.local/share/edm_planner/plans).
+geometry_wait : float
+    How long a request waits for a geometry still being prepared [s].
+"""
+
+import json
+import logging
+import os
+import threading
+from dataclasses import replace
+
+import numpy as np
+from edm_planner_msgs.msg import AxisPath, AxisPoint, BliskGeometry, ChannelPlan, PlanMetrics, PlanProgress
+from edm_planner_msgs.srv import PlanChannel
+from geometry_msgs.msg import PoseArray
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+
+from ..errors import EdmError, ErrorCode
+from ..geometry.blisk import Blisk
+from ..geometry.electrode import ElectrodeDesign, design_electrodes
+from ..geometry.loader import LoadedGeometry
+from ..interference.fast import FastChannelField
+from ..planning.objective import Weights
+from ..planning.plan import PlanOptions
+from ..planning.planner import plan_channel
+from ..planning.search import SearchOptions
+from .conversions import error_code, matrix_to_pose
+from .geometry_loader import LATCHED
+from .runtime import spin_node
+
+_DESIGN_FLOATS = ("discharge_gap", "circumferential_reduction", "radial_reduction", "split_fraction",
+                  "split_overlap")
+
+
+def design_override(msg, base):
+    """ElectrodeDesign message -> design, or None when the message is untouched (all zero / empty)."""
+    floats = {name: float(getattr(msg, name)) for name in _DESIGN_FLOATS + ("axial_start", "axial_end")}
+    if not msg.reduction_side and not msg.split and all(v == 0.0 for v in floats.values()):
+        return None
+    changes = {k: v for k, v in floats.items() if k in _DESIGN_FLOATS and not np.isnan(v)}
+    if msg.reduction_side:
+        changes["reduction_side"] = msg.reduction_side
+    if msg.split:
+        changes["split"] = msg.split
+    a0, a1 = floats["axial_start"], floats["axial_end"]
+    if not (np.isnan(a0) and np.isnan(a1)):
+        if np.isnan(a0) or np.isnan(a1):
+            raise EdmError(ErrorCode.INVALID_REQUEST, "electrode.axial_start and axial_end: give both or neither")
+        changes["axial_range"] = (a0, a1)
+    if not all(np.isfinite(v) for v in changes.values() if isinstance(v, float)):
+        raise EdmError(ErrorCode.INVALID_REQUEST, "electrode design values must be finite numbers")
+    return replace(base, **changes)
+
+
+def plan_options(settings, default_budget):
+    """PlannerSettings message -> PlanOptions (NaN / 0 / empty take the defaults)."""
+    d = SearchOptions()
+
+    def value(x, default):
+        x = float(x)
+        return default if (np.isnan(x) or x == 0.0) else x
+
+    def weights(values, default):
+        return tuple(values) if len(values) else default
+
+    try:
+        w = Weights(smoothness=weights(settings.weights_smoothness, Weights().smoothness),
+                    margin=weights(settings.weights_margin, Weights().margin),
+                    total=weights(settings.weights_total, Weights().total))
+        reference = {settings.REFERENCE_X_AXIS: "x_axis", settings.REFERENCE_CENTERLINE: "centerline"}.get(
+            settings.reference)
+        if reference is None:
+            raise ValueError(f"reference must be 0 (x axis) or 1 (centerline), got {settings.reference}")
+        search = SearchOptions(
+            method=settings.method or d.method, reference=reference, axes=int(settings.axes) or d.axes,
+            step=value(settings.step, d.step), margin_hub_shroud=value(settings.margin_hub_shroud, d.margin_hub_shroud),
+            margin_blade=value(settings.margin_blade, d.margin_blade),
+            exit_distance=value(settings.exit_distance, d.exit_distance), weights=w, seed=int(settings.seed),
+            time_budget=value(settings.time_budget, default_budget))
+        return PlanOptions(search=search, size_electrode=bool(settings.size_electrode))
+    except ValueError as exc:
+        raise EdmError(ErrorCode.INVALID_REQUEST, f"settings: {exc}") from None
+
+
+def metrics_to_msg(m):
+    """PlanMetrics (core) -> PlanMetrics message."""
+    msg = PlanMetrics(node_count=int(m.node_count), path_length=float(m.path_length), objfun1=float(m.objfun1),
+                      objfun2=float(m.objfun2), axis_names=list(m.axis_names),
+                      smoothness=[float(v) for v in m.smoothness], sharp_points=[int(v) for v in m.sharp_points],
+                      solver_evaluations=int(m.solver_evaluations), planning_time=float(m.planning_time),
+                      certified=bool(m.certified), circumferential_reduction=float(m.circumferential_reduction))
+    (msg.min_clearance_suction, msg.min_clearance_pressure, msg.min_clearance_hub,
+     msg.min_clearance_shroud) = (float(v) for v in m.min_clearance)
+    return msg
+
+
+def axis_path_msg(axis_names, samples):
+    return AxisPath(axis_names=list(axis_names), points=[AxisPoint(positions=row) for row in samples.tolist()])
+
+
+def pose_array_msg(poses, frame_id):
+    msg = PoseArray()
+    msg.header.frame_id = frame_id
+    msg.poses = [matrix_to_pose(p) for p in poses]
+    return msg
+
+
+class _Prepared:
+    """A geometry being (or done being) prepared for planning."""
+
+    def __init__(self):
+        self.ready = threading.Event()
+        self.geometry = None
+        self.field = None
+        self.error = None
+
+
+class TrajectoryPlannerNode(Node):
+    """Serves PlanChannel for every geometry published on ``geometry``."""
+
+    def __init__(self, **kwargs):
+        super().__init__("trajectory_planner", **kwargs)
+        self.declare_parameter("cache_dir", "")
+        self.declare_parameter("fast_spacing", 0.1)
+        self.declare_parameter("time_budget", 60.0)
+        self.declare_parameter("export_dir", "")
+        self.declare_parameter("geometry_wait", 120.0)
+        self.declare_parameter("frame_id", "blisk")
+        self.geometries = {}
+        self.latest = None
+        self._lock = threading.Lock()
+        self.create_subscription(BliskGeometry, "geometry", self.on_geometry, LATCHED,
+                                 callback_group=MutuallyExclusiveCallbackGroup())
+        self.plan_pub = self.create_publisher(ChannelPlan, "plan", LATCHED)
+        self.progress_pub = self.create_publisher(PlanProgress, "plan_progress", 10)
+        self.service = self.create_service(PlanChannel, "plan_channel", self.on_plan,
+                                           callback_group=MutuallyExclusiveCallbackGroup())
+
+    # -- geometry ---------------------------------------------------------------------------
+    def on_geometry(self, msg):
+        gid = msg.summary.geometry_id
+        with self._lock:
+            if gid in self.geometries:
+                return
+            prepared = self.geometries[gid] = _Prepared()
+            self.latest = gid
+        threading.Thread(target=self._prepare, args=(gid, msg.model_json, prepared), daemon=True).start()
+
+    def _prepare(self, gid, model_json, prepared):
+        try:
+            model = json.loads(model_json)
+            blisk = Blisk.from_dict(model)
+            design = ElectrodeDesign.from_dict(model.get("electrode_design") or {})
+            electrodes = design_electrodes(blisk, design)
+            prepared.geometry = LoadedGeometry(gid, blisk, design, electrodes, source=model.get("source", ""))
+            cache = self.get_parameter("cache_dir").value or os.path.join(os.path.expanduser("~"), ".cache",
+                                                                            "edm_planner")
+            prepared.field = FastChannelField(blisk, spacing=float(self.get_parameter("fast_spacing").value),
+                                              cache_dir=cache, cache_key=gid)
+            self.get_logger().info(f"geometry {gid[:12]} ready for planning: electrodes "
+                                   f"{[e.electrode_id for e in electrodes]}, field bound "
+                                   f"{prepared.field.error_bound * 1e3:.2f} um")
+        except Exception as exc:  # a geometry we cannot use must not take the node down
+            prepared.error = exc
+            self.get_logger().error(f"geometry {gid[:12]} not usable for planning: {exc!r}")
+        finally:
+            prepared.ready.set()
+
+    def _geometry(self, gid):
+        gid = gid or self.latest
+        with self._lock:
+            prepared = self.geometries.get(gid) if gid else None
+        if prepared is None:
+            raise EdmError(ErrorCode.UNKNOWN_ID,
+                           f"unknown geometry id {gid!r}; load it with the geometry_loader first")
+        if not prepared.ready.wait(float(self.get_parameter("geometry_wait").value)):
+            raise EdmError(ErrorCode.TIMEOUT, f"geometry {gid[:12]} is still being prepared")
+        if prepared.error is not None:
+            raise EdmError(ErrorCode.INVALID_GEOMETRY, f"geometry {gid[:12]} not usable: {prepared.error}")
+        return prepared
+
+    # -- planning ---------------------------------------------------------------------------
+    def on_plan(self, request, response):
+        try:
+            self._plan(request, response)
+        except EdmError as exc:
+            response.success = False
+            response.error_code = error_code(exc.code)
+            response.message = exc.message
+            self.get_logger().warning(f"PlanChannel refused ({exc.code.name}): {exc.message}")
+        except Exception as exc:
+            logging.getLogger(__name__).exception("internal error")
+            response.success = False
+            response.error_code = error_code(ErrorCode.INTERNAL)
+            response.message = f"internal error: {exc!r}"
+        return response
+
+    def _plan(self, request, response):
+        prepared = self._geometry(request.geometry_id)
+        geometry = prepared.geometry
+        options = plan_options(request.settings, float(self.get_parameter("time_budget").value))
+        design = design_override(request.electrode, geometry.design)
+        request_id = f"{geometry.geometry_id[:8]}/{request.channel}/{request.electrode_id or 'first'}"
+
+        def progress(stage, fraction, nodes, reference, message):
+            self.progress_pub.publish(PlanProgress(request_id=request_id, stage=stage, fraction=float(fraction),
+                                                   nodes=int(nodes), reference=float(reference),
+                                                   message=message))
+
+        plan = plan_channel(geometry, int(request.channel), request.electrode_id, options, field=prepared.field,
+                            progress=progress, design=design)
+        response.success = plan.success
+        response.error_code = error_code(plan.error_code)
+        response.message = plan.message
+        response.plan_id = plan.plan_id
+        response.metrics = metrics_to_msg(plan.metrics)
+        response.furthest_node = int(plan.furthest_node)
+        response.furthest_reference = float(plan.furthest_reference)
+        response.blocking_surface = plan.blocking_surface
+        response.blocking_clearance = float(plan.blocking_clearance)
+        if not plan.success:
+            self.get_logger().warning(f"plan {plan.plan_id}: {plan.error_code.name}: {plan.message}")
+            return
+        frame = self.get_parameter("frame_id").value
+        response.poses = pose_array_msg(plan.poses, frame)
+        response.axis_path = axis_path_msg(plan.axis_names, plan.samples)
+        if request.write_export:
+            from ..planning.export import write_plan
+            root = self.get_parameter("export_dir").value or os.path.join(
+                os.path.expanduser("~"), ".local", "share", "edm_planner", "plans")
+            path = os.path.join(root, plan.plan_id)
+            write_plan(plan, path, geometry.blisk)
+            response.export_path = path
+        self.plan_pub.publish(ChannelPlan(
+            plan_id=plan.plan_id, geometry_id=plan.geometry_id, channel=int(plan.channel),
+            electrode_id=plan.electrode_id, method=options.search.method,
+            final_pose=[float(v) for v in plan.poses[-1].reshape(-1)], poses=response.poses,
+            axis_path=response.axis_path, metrics=response.metrics))
+        self.get_logger().info(f"plan {plan.plan_id}: {plan.message}")
+
+
+def main(args=None):
+    """Console entry point ``trajectory_planner``."""
+    return spin_node(TrajectoryPlannerNode, args)
