@@ -1,0 +1,624 @@
+"""Plan export: the directory that downstream tools and independent checks read.
+
+Layout of format ``edm_planner.plan/1`` (units mm and rad, frame W: X is the
+blisk's rotation axis, ``theta = atan2(z, y)``)::
+
+    plan.json       metadata, settings, samples in feed order (axis values and the
+                    4x4 row-major pose electrode frame -> W), metrics, file hashes
+    electrode.stl   the electrode mesh that was checked, in the electrode frame;
+                    ASCII with shortest round-trip digits, so it reads back bit-exact
+    workpiece.stl   the channel sector in W: suction, pressure, hub and shroud
+                    patches concatenated in this order (face ranges in plan.json);
+                    binary, float32: a reference for viewers, the exact check uses
+                    the model surfaces
+    axes.csv        header ``X [mm],Y [mm],...``, one row per sample
+
+:func:`write_plan` writes the directory, :func:`read_plan` reads and validates
+it, :func:`verify_exported_plan` re-checks it with the exact clearance of every
+electrode vertex, independently of how the planner checked it.
+"""
+
+import csv
+import dataclasses
+import datetime
+import enum
+import hashlib
+import io
+import json
+import logging
+import math
+import os
+import pathlib
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+
+from .. import __version__
+from ..errors import EdmError, ErrorCode
+from ..interference import SURFACES
+from ..geometry.frames import cartesian_to_cylindrical, rotation_about_x
+from ..interference.exact_points import ExactChannelDistance, transform_points
+from ..machine.kinematics import axis_poses
+from .plan import AXIS_NAMES
+
+_log = logging.getLogger(__name__)
+
+FORMAT = "edm_planner.plan/1"
+UNITS = {"length": "mm", "angle": "rad"}
+AXIS_UNITS = {"X": "mm", "Y": "mm", "Z": "mm", "A": "rad", "C": "rad", "B": "rad"}
+FRAME = {
+    "id": "workpiece",
+    "description": "W: X is the blisk's rotation axis, theta = atan2(z, y); channel k lies between the "
+                   "suction face of blade k and the pressure face of blade k+1",
+    "pose": "4x4 row-major homogeneous matrix mapping electrode-frame points to W",
+    "electrode_frame": "origin at the electrode's centre of volume, X along the blisk axis, Z radial",
+}
+AXES_CONVENTION = ("machine axis values measured from the electrode's final machining pose in channel 0; "
+                   "pose = Rx(A) . T(X, Y, Z) . T_final . Rz(C) (. Ry(B)), A includes channel * pitch "
+                   "(fixed at channel * pitch on a 4-axis machine)")
+FILES = {"plan": "plan.json", "electrode": "electrode.stl", "workpiece": "workpiece.stl", "axes": "axes.csv"}
+
+#: largest move of any electrode vertex between consecutive samples that format 1 allows [mm]
+MAX_VERTEX_STEP = 0.05
+#: |R^T R - I| and |det R - 1| accepted as a rigid rotation (poses are products of exact rotations)
+RIGID_TOLERANCE = 1e-9
+#: slack on exact distances (converged Gauss-Newton / Newton) when bounding them [mm]
+EXACT_TOLERANCE = 1e-6
+
+
+class PlanFileError(EdmError):
+    """An exported plan directory that is missing, unreadable or malformed (FILE_ERROR)."""
+
+    def __init__(self, message: str):
+        super().__init__(ErrorCode.FILE_ERROR, message)
+
+
+# -- writing ------------------------------------------------------------------------------
+
+def json_safe(value):
+    """Plain JSON values from dataclasses, enums, numpy values and tuples; NaN/inf become None."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: json_safe(getattr(value, f.name)) for f in dataclasses.fields(value)
+                if not f.name.startswith("_")}
+    if isinstance(value, enum.Enum):
+        return value.name
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [json_safe(v) for v in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    return value
+
+
+def _sha256(path):
+    return hashlib.sha256(pathlib.Path(path).read_bytes()).hexdigest()
+
+
+def _write_atomic(path, data):
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_bytes(data if isinstance(data, bytes) else data.encode())
+    os.replace(tmp, path)
+
+
+def _axes_csv(axis_names, samples):
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["sample"] + [f"{n} [{AXIS_UNITS[n]}]" for n in axis_names])
+    for i, row in enumerate(samples):
+        w.writerow([i] + [repr(float(v)) for v in row])     # repr: shortest digits that round-trip
+    return buf.getvalue()
+
+
+def write_plan(plan, out_dir, blisk, workpiece_resolution=0.5):
+    """Write a plan as an export directory (format ``edm_planner.plan/1``).
+
+    Failed plans are written too (with their error code, message and how far the
+    search got); :func:`read_plan` refuses them unless asked not to.
+
+    Parameters
+    ----------
+    plan : Plan
+    out_dir : path
+        Created if missing; the four files in it are replaced.
+    blisk : Blisk
+        The geometry the plan was made for (its channel sector goes to workpiece.stl).
+    workpiece_resolution : float
+        Edge length of the workpiece surface meshes [mm].
+
+    Returns
+    -------
+    pathlib.Path
+        The plan.json written.
+
+    Raises
+    ------
+    EdmError
+        INTERNAL for a plan whose arrays are inconsistent or not finite,
+        FILE_ERROR when the directory cannot be written.
+    """
+    names = tuple(plan.axis_names)
+    samples = np.asanyarray(plan.samples, dtype=np.float64).reshape(-1, len(names))
+    poses = np.asanyarray(plan.poses, dtype=np.float64).reshape(-1, 4, 4)
+    nodes = np.asanyarray(plan.nodes, dtype=np.float64).reshape(-1, len(names))
+    if names not in AXIS_NAMES.values():
+        raise EdmError(ErrorCode.INTERNAL, f"plan {plan.plan_id}: unknown axis names {names}")
+    if len(samples) != len(poses):
+        raise EdmError(ErrorCode.INTERNAL, f"plan {plan.plan_id}: {len(samples)} axis samples but {len(poses)} poses")
+    for what, arr in (("samples", samples), ("poses", poses), ("nodes", nodes), ("final_pose", plan.final_pose)):
+        if not np.isfinite(arr).all():
+            raise EdmError(ErrorCode.INTERNAL, f"plan {plan.plan_id}: {what} are not all finite")
+    if plan.success and len(samples) < 2:
+        raise EdmError(ErrorCode.INTERNAL, f"plan {plan.plan_id}: a successful plan needs at least 2 samples")
+    out = pathlib.Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        electrode = out / FILES["electrode"]
+        _write_atomic(electrode, trimesh.exchange.stl.export_stl_ascii(plan.electrode_mesh))
+        meshes = blisk.channel_meshes(plan.channel, workpiece_resolution)
+        ranges, start = {}, 0
+        for s in SURFACES:
+            ranges[s] = [start, start + len(meshes[s].faces)]
+            start += len(meshes[s].faces)
+        workpiece = out / FILES["workpiece"]
+        _write_atomic(workpiece, trimesh.util.concatenate([meshes[s] for s in SURFACES]).export(file_type="stl"))
+        axes = out / FILES["axes"]
+        _write_atomic(axes, _axes_csv(names, samples))
+        doc = {
+            "format": FORMAT,
+            "units": UNITS,
+            "frame": FRAME,
+            "plan_id": plan.plan_id,
+            "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "edm_planner_version": __version__,
+            "geometry_id": plan.geometry_id,
+            "channel": int(plan.channel),
+            "blade_count": int(blisk.blade_count),
+            "electrode_id": plan.electrode_id,
+            "method": plan.options.search.method,
+            "error_code": ErrorCode(plan.error_code).name,
+            "message": plan.message,
+            "settings": json_safe(plan.options),
+            "axis_names": list(names),
+            "axis_units": [AXIS_UNITS[n] for n in names],
+            "axes_convention": AXES_CONVENTION,
+            "final_pose": json_safe(np.asarray(plan.final_pose).reshape(-1)),
+            "samples": [{"axes": json_safe(q), "pose": json_safe(p.reshape(-1))} for q, p in zip(samples, poses)],
+            "nodes": json_safe(nodes),
+            "metrics": json_safe(plan.metrics.to_dict()),
+            "failure": {"furthest_node": int(plan.furthest_node),
+                        "furthest_reference": json_safe(plan.furthest_reference),
+                        "blocking_surface": plan.blocking_surface,
+                        "blocking_clearance": json_safe(plan.blocking_clearance)},
+            "files": {
+                "electrode": {"name": FILES["electrode"], "sha256": _sha256(electrode), "encoding": "ascii",
+                              "vertices": len(plan.electrode_mesh.vertices),
+                              "faces": len(plan.electrode_mesh.faces)},
+                "workpiece": {"name": FILES["workpiece"], "sha256": _sha256(workpiece), "encoding": "binary",
+                              "resolution": float(workpiece_resolution), "surfaces": ranges},
+                "axes": {"name": FILES["axes"], "sha256": _sha256(axes)},
+            },
+        }
+        path = out / FILES["plan"]
+        _write_atomic(path, json.dumps(doc, indent=1, allow_nan=False))
+    except OSError as exc:
+        raise EdmError(ErrorCode.FILE_ERROR, f"cannot write the plan to {out}: {exc}") from exc
+    return path
+
+
+# -- reading ------------------------------------------------------------------------------
+
+@dataclass(eq=False)
+class ExportedPlan:
+    """A validated export directory.
+
+    Attributes
+    ----------
+    path : pathlib.Path
+        The directory.
+    doc : dict
+        plan.json as read.
+    axis_names : tuple of str
+    axes : (N, k) float
+        Axis values per sample, feed order.
+    poses : (N, 4, 4) float
+        Electrode frame -> W per sample.
+    final_pose : (4, 4) float
+        Electrode frame -> W at the machining pose in channel 0.
+    electrode_mesh : trimesh.Trimesh
+        From electrode.stl (coincident vertices merged exactly).
+    error_code : ErrorCode
+    """
+
+    path: pathlib.Path
+    doc: dict
+    axis_names: tuple
+    axes: np.ndarray
+    poses: np.ndarray
+    final_pose: np.ndarray
+    electrode_mesh: trimesh.Trimesh
+    error_code: ErrorCode
+    nodes: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+
+    @property
+    def success(self):
+        return self.error_code == ErrorCode.SUCCESS
+
+    @property
+    def channel(self):
+        return int(self.doc["channel"])
+
+    @property
+    def geometry_id(self):
+        return self.doc["geometry_id"]
+
+    def workpiece_meshes(self):
+        """The channel sector from workpiece.stl, split into its labelled surfaces (W)."""
+        mesh = _load_stl(self.path / FILES["workpiece"])
+        out = {}
+        for s, (a, b) in self.doc["files"]["workpiece"]["surfaces"].items():
+            out[s] = trimesh.Trimesh(mesh.vertices, mesh.faces[a:b], process=False)
+            out[s].remove_unreferenced_vertices()
+        return out
+
+
+def _load_stl(path):
+    """An STL as a mesh whose vertices are merged only where bit-identical (no rounding)."""
+    with open(path, "rb") as f:
+        soup = trimesh.exchange.stl.load_stl(f)
+    tri = np.asarray(soup["vertices"], dtype=np.float64)[np.asarray(soup["faces"])]
+    vertices, inverse = np.unique(tri.reshape(-1, 3), axis=0, return_inverse=True)
+    return trimesh.Trimesh(vertices, inverse.reshape(-1, 3), process=False)
+
+
+def _matrix(value, shape, where):
+    try:
+        a = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise PlanFileError(f"{where}: expected {int(np.prod(shape))} numbers, got {str(value)[:60]}") from None
+    if a.size != int(np.prod(shape)) or a.ndim != 1:
+        raise PlanFileError(f"{where}: expected {int(np.prod(shape))} numbers, got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise PlanFileError(f"{where}: contains NaN, infinite or null values")
+    return a.reshape(shape)
+
+
+def check_rigid(poses, where="pose"):
+    """Raise PlanFileError unless every pose is a rigid motion (R^T R = I, det R = +1, last row 0 0 0 1)."""
+    poses = np.asanyarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    R = poses[:, :3, :3]
+    ortho = np.abs(np.einsum("nki,nkj->nij", R, R) - np.eye(3)).max(axis=(1, 2))
+    det = np.abs(np.linalg.det(R) - 1.0)
+    row = np.abs(poses[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1)
+    bad = np.flatnonzero((ortho > RIGID_TOLERANCE) | (det > RIGID_TOLERANCE) | (row > RIGID_TOLERANCE))
+    if len(bad):
+        i = int(bad[0])
+        raise PlanFileError(f"{where}: pose {i} is not a rigid motion: |R^T R - I| = {ortho[i]:.3g}, "
+                            f"|det R - 1| = {det[i]:.3g}, last row {poses[i, 3].tolist()}")
+
+
+def read_plan(path, require_success=True):
+    """Read and validate an export directory.
+
+    Checks the format and units, the shape and finiteness of every sample, that
+    every pose is rigid, that electrode.stl is the file plan.json names (sha256)
+    and that axes.csv holds the same axis values as plan.json.
+
+    Parameters
+    ----------
+    path : path
+        The directory (or its plan.json).
+    require_success : bool
+        Refuse a plan whose error code is not SUCCESS.
+
+    Returns
+    -------
+    ExportedPlan
+
+    Raises
+    ------
+    PlanFileError
+        (FILE_ERROR) on a missing, unreadable or malformed file, naming the file and key.
+    EdmError
+        With the plan's own error code when it failed and ``require_success``.
+    """
+    path = pathlib.Path(path)
+    if path.name == FILES["plan"]:
+        path = path.parent
+    pj = path / FILES["plan"]
+    try:
+        doc = json.loads(pj.read_text())
+    except FileNotFoundError:
+        raise PlanFileError(f"{pj}: no such file (not a plan export directory)") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise PlanFileError(f"{pj}: cannot read: {exc}") from None
+    except json.JSONDecodeError as exc:
+        raise PlanFileError(f"{pj}: not valid JSON: {exc}") from None
+    if not isinstance(doc, dict):
+        raise PlanFileError(f"{pj}: expected a JSON object at the top level")
+    if doc.get("format") != FORMAT:
+        raise PlanFileError(f"{pj}: format is {doc.get('format')!r}, this reader understands {FORMAT!r}")
+    for key in ("units", "geometry_id", "channel", "electrode_id", "axis_names", "samples", "final_pose",
+                "metrics", "error_code", "message", "plan_id", "files"):
+        if key not in doc:
+            raise PlanFileError(f"{pj}: missing key {key!r}")
+    if doc["units"] != UNITS:
+        raise PlanFileError(f"{pj}: units are {doc['units']}, expected {UNITS}")
+    names = tuple(doc["axis_names"]) if isinstance(doc["axis_names"], list) else None
+    if names not in AXIS_NAMES.values():
+        raise PlanFileError(f"{pj}: axis_names {doc['axis_names']!r} is none of {list(AXIS_NAMES.values())}")
+    if not isinstance(doc["channel"], int) or doc["channel"] < 0:
+        raise PlanFileError(f"{pj}: channel must be an integer >= 0, got {doc['channel']!r}")
+    try:
+        code = ErrorCode[doc["error_code"]]
+    except (KeyError, TypeError):
+        raise PlanFileError(f"{pj}: unknown error_code {doc['error_code']!r}") from None
+    if code != ErrorCode.SUCCESS and require_success:
+        raise EdmError(code, f"{pj}: the plan failed and has no certified path: {doc['message']}")
+    samples = doc["samples"]
+    if not isinstance(samples, list) or (code == ErrorCode.SUCCESS and len(samples) < 2):
+        raise PlanFileError(f"{pj}: samples must be a list of at least 2 samples")
+    k = len(names)
+    axes, poses = np.zeros((len(samples), k)), np.zeros((len(samples), 4, 4))
+    for i, s in enumerate(samples):
+        if not isinstance(s, dict) or "axes" not in s or "pose" not in s:
+            raise PlanFileError(f"{pj}: samples[{i}] needs 'axes' and 'pose'")
+        axes[i] = _matrix(s["axes"], (k,), f"{pj}: samples[{i}].axes")
+        poses[i] = _matrix(s["pose"], (4, 4), f"{pj}: samples[{i}].pose")
+    check_rigid(poses, f"{pj}: samples")
+    final = _matrix(doc["final_pose"], (4, 4), f"{pj}: final_pose")
+    check_rigid(final, f"{pj}: final_pose")
+    nodes = np.array(doc.get("nodes") or np.zeros((0, k)), dtype=np.float64).reshape(-1, k)
+    # the companion files: the electrode that plan.json names, the same axis values in axes.csv
+    files = doc["files"]
+    el = path / FILES["electrode"]
+    if not el.is_file():
+        raise PlanFileError(f"{el}: no such file")
+    if _sha256(el) != files.get("electrode", {}).get("sha256"):
+        raise PlanFileError(f"{el}: sha256 differs from the one plan.json records (file replaced or damaged)")
+    try:
+        mesh = _load_stl(el)
+    except Exception as exc:       # trimesh raises several types on a broken STL
+        raise PlanFileError(f"{el}: not a readable STL: {exc}") from None
+    if not len(mesh.faces) or not np.isfinite(mesh.vertices).all():
+        raise PlanFileError(f"{el}: empty or not finite")
+    if not (path / FILES["workpiece"]).is_file():
+        raise PlanFileError(f"{path / FILES['workpiece']}: no such file")
+    ax = path / FILES["axes"]
+    try:
+        rows = list(csv.reader(ax.read_text().splitlines()))
+        header, body = rows[0], np.array([[float(v) for v in r[1:]] for r in rows[1:]]).reshape(-1, k)
+    except FileNotFoundError:
+        raise PlanFileError(f"{ax}: no such file") from None
+    except (IndexError, ValueError) as exc:
+        raise PlanFileError(f"{ax}: malformed: {exc}") from None
+    if [h.split(" ")[0] for h in header[1:]] != list(names):
+        raise PlanFileError(f"{ax}: header {header} does not name the axes {list(names)}")
+    if body.shape != axes.shape or not np.array_equal(body, axes):
+        raise PlanFileError(f"{ax}: axis values differ from plan.json's samples")
+    return ExportedPlan(path, doc, names, axes, poses, final, mesh, code, nodes)
+
+
+# -- independent re-check -----------------------------------------------------------------
+
+@dataclass
+class PlanCheck:
+    """The exact re-check of an exported plan.
+
+    Attributes
+    ----------
+    passed : bool
+        Every sample clear by ``threshold`` on every surface, no vertex step above
+        ``max_step``, axis values and poses agree.
+    min_clearance : dict
+        Surface -> the smallest exact signed clearance over all samples and vertices [mm].
+    argmin : dict
+        Surface -> (sample, vertex) attaining it.
+    max_vertex_step : float
+        Largest move of any electrode vertex between consecutive samples [mm].
+    axes_pose_error : float
+        Largest distance between an electrode vertex placed by the axis values and by the pose [mm].
+    start_outside : bool
+        The first sample's electrode lies wholly beyond the blade's axial range.
+    final_pose_error : float
+        Largest vertex distance between the last sample and the final pose in the plan's channel [mm].
+    samples, vertices : int
+    full_evaluations : int
+        Samples whose every vertex was evaluated exactly.
+    exact_evaluations : int
+        Vertex positions evaluated exactly in all (of samples * vertices).
+    elapsed : float
+        [s]
+    message : str
+    """
+
+    passed: bool
+    min_clearance: dict
+    argmin: dict
+    max_vertex_step: float
+    axes_pose_error: float
+    start_outside: bool
+    final_pose_error: float
+    samples: int
+    vertices: int
+    full_evaluations: int
+    exact_evaluations: int
+    threshold: float
+    elapsed: float
+    message: str = ""
+
+
+def _box_error(pa, pb, box):
+    """Largest distance between box corners under two pose batches (bounds every point inside)."""
+    return float(np.linalg.norm(transform_points(pa, box) - transform_points(pb, box), axis=2).max())
+
+
+def axes_to_poses(axis_names, axes, final_pose, channel, pitch):
+    """Electrode poses in W from exported axis values (the convention of ``AXES_CONVENTION``)."""
+    poses = axis_poses(final_pose, axis_names, axes)
+    if "A" not in axis_names:            # a 4-axis machine indexes the channel with a fixed A
+        poses = rotation_about_x(channel * pitch)[None] @ poses
+    return poses
+
+
+def verify_exported_plan(path, blisk, threshold=0.0, max_step=MAX_VERTEX_STEP, anchor_stride=256,
+                         geometry_id=None):
+    """Re-check an export directory with the exact clearance of every electrode vertex at every sample.
+
+    Reads electrode.stl and the sample poses (not the planner's objects) and
+    computes the exact signed clearances (:class:`ExactChannelDistance`) of the
+    electrode vertices to the four surfaces of the plan's channel. Evaluating
+    every vertex at every sample costs ~0.1 ms per vertex, minutes per plan, so
+    the minimum is found by exact bounding instead of subsampling: every vertex
+    is evaluated at anchor samples (every ``anchor_stride``-th, first and last);
+    between two anchors a vertex's clearance is at least its anchor value less
+    the distance it moved from that anchor (the signed distance is 1-Lipschitz),
+    and only the (sample, vertex) pairs whose bound falls below the smallest
+    clearance found so far are evaluated exactly; where that set exceeds one
+    sample's vertices the interval is split at an exactly evaluated midpoint. The
+    reported minima are therefore the exact minima over all samples and vertices.
+    Where a vertex's values at two anchors differ by more than its travel, the
+    sign has jumped (a blade footprint's edge behind a face) and that vertex is
+    evaluated at every sample between them. Not covered: a sign jump that
+    reverts between two anchors, and contact between vertices (faces and motion
+    between samples, which the 0.05 mm vertex step bounds).
+
+    Parameters
+    ----------
+    path : path
+        Export directory.
+    blisk : Blisk
+        The geometry (its hash is not recomputed here; pass ``geometry_id`` to compare).
+    threshold : float
+        Smallest clearance accepted [mm].
+    max_step : float
+        Largest vertex move between consecutive samples accepted [mm].
+    anchor_stride : int
+    geometry_id : str, optional
+        Must equal the plan's geometry id when given.
+
+    Returns
+    -------
+    PlanCheck
+
+    Raises
+    ------
+    PlanFileError
+        From :func:`read_plan`.
+    EdmError
+        UNKNOWN_ID when ``geometry_id`` is given and differs from the plan's.
+    """
+    t0 = time.perf_counter()
+    plan = read_plan(path)
+    if geometry_id is not None and geometry_id != plan.geometry_id:
+        raise EdmError(ErrorCode.UNKNOWN_ID, f"{path}: plan is for geometry {plan.geometry_id[:12]}, "
+                                             f"not {geometry_id[:12]}")
+    V = plan.electrode_mesh.vertices
+    P = plan.poses
+    N, m, ch = len(P), len(V), plan.channel
+    exact = ExactChannelDistance(blisk)
+    box = trimesh.bounds.corners(plan.electrode_mesh.bounds)
+
+    # consistency of the file: axis values reproduce the poses, the path ends at the final pose
+    axes_error = _box_error(axes_to_poses(plan.axis_names, plan.axes, plan.final_pose, ch, blisk.pitch), P, box)
+    final_error = _box_error(P[-1:], (blisk.channel_transform(ch) @ plan.final_pose)[None], box)
+    start_outside = bool(transform_points(P[:1], V)[0, :, 0].min() > blisk.axial_range[1]
+                         or transform_points(P[:1], V)[0, :, 0].max() < blisk.axial_range[0])
+
+    # largest vertex step, in chunks of poses to bound memory
+    max_vstep = 0.0
+    chunk = max(2, 2_000_000 // max(m, 1))
+    for i in range(0, N - 1, chunk - 1):
+        W = transform_points(P[i:i + chunk], V)
+        max_vstep = max(max_vstep, float(np.linalg.norm(np.diff(W, axis=0), axis=2).max()))
+
+    counts = {"full": 0, "points": 0}
+
+    def evaluate(points, blades=True):
+        """Exact (n, 4) clearances; hub and shroud only (blade columns +inf) when not ``blades``."""
+        counts["points"] += len(points)
+        if not blades:
+            x, rho, _ = cartesian_to_cylindrical(points)
+            return np.column_stack([np.full((len(points), 2), np.inf), exact.hub.signed(x, rho)[0],
+                                    exact.shroud.signed(x, rho)[0]])
+        # the closest-point solver is fastest on batches of about a thousand points
+        return np.vstack([exact.clearances(points[i:i + 1000], ch) for i in range(0, len(points), 1000)])
+
+    anchors = sorted(set(range(0, N, max(1, int(anchor_stride)))) | {N - 1})
+    values = {}                       # sample -> (m, 4) lower bounds, exact where evaluated
+    best = np.full(4, np.inf)
+    where = [(-1, -1)] * 4
+
+    def update(rows, idx, c):
+        for s in range(4):
+            k = int(np.argmin(c[:, s]))
+            if c[k, s] < best[s]:
+                best[s], where[s] = c[k, s], (int(rows[k]), int(idx[k]))
+
+    def candidates(lower):
+        """Masks of the points that may attain a minimum: blade columns needed / hub or shroud only."""
+        need = lower < best + EXACT_TOLERANCE
+        blade = need[..., :2].any(axis=-1)
+        return blade, need[..., 2:].any(axis=-1) & ~blade
+
+    for j in anchors:
+        values[j] = evaluate(transform_points(P[j:j + 1], V)[0])
+        counts["full"] += 1
+        update(np.full(m, j), np.arange(m), values[j])
+    stack = []
+    for a, b in zip(anchors[:-1], anchors[1:]):
+        if b - a > 1:
+            travel = np.linalg.norm(transform_points(P[b], V)[0] - transform_points(P[a], V)[0], axis=1)
+            # exact values closer than 1-Lipschitz allows: the sign jumped (a blade footprint's edge)
+            stack.append((a, b, np.abs(values[a] - values[b]) > travel[:, None] + EXACT_TOLERANCE))
+    while stack:
+        a, b, jump = stack.pop()
+        W = transform_points(P[a + 1:b], V)                                # interior samples (L, m, 3)
+        da = np.linalg.norm(W - transform_points(P[a], V), axis=2)[..., None]
+        db = np.linalg.norm(W - transform_points(P[b], V), axis=2)[..., None]
+        lower = np.maximum(values[a] - da, values[b] - db)                 # (L, m, 4)
+        lower[:, jump] = -np.inf
+        blade, wall = candidates(lower)
+        if b - a > 2 and blade.sum() + 0.1 * wall.sum() > 0.05 * m:
+            # bisect: the midpoint's candidates evaluated exactly tighten both halves' bounds
+            mid = (a + b) // 2
+            r = mid - a - 1
+            values[mid] = bound = lower[r].copy()
+            for mask, blades in ((blade[r], True), (wall[r], False)):
+                idx = np.flatnonzero(mask)
+                if len(idx):
+                    c = evaluate(W[r, idx], blades)
+                    bound[idx] = np.where(np.isfinite(c), c, bound[idx])
+                    update(np.full(len(idx), mid), idx, c)
+            stack += [(a, mid, jump), (mid, b, jump)]
+            continue
+        for mask, blades in ((blade, True), (wall, False)):
+            rows, idx = np.nonzero(mask)
+            if len(rows):
+                update(a + 1 + rows, idx, evaluate(W[rows, idx], blades))
+
+    min_clearance = {s: float(v) for s, v in zip(SURFACES, best)}
+    problems = [f"{s} clearance {best[i]:.4f} mm below {threshold} mm at sample {where[i][0]}"
+                for i, s in enumerate(SURFACES) if best[i] < threshold]
+    if max_vstep > max_step + 1e-12:
+        problems.append(f"a vertex moves {max_vstep:.4f} mm between samples (limit {max_step} mm)")
+    if axes_error > 1e-6:
+        problems.append(f"axis values and poses disagree by {axes_error:.3g} mm")
+    if final_error > 1e-6:
+        problems.append(f"the last sample is {final_error:.3g} mm from the final pose in channel {ch}")
+    if not start_outside:
+        problems.append("the first sample is not outside the blisk's axial range")
+    elapsed = time.perf_counter() - t0
+    _log.info("verified %s: %d samples x %d vertices, %d full samples, %d exact points, %.1f s",
+              path, N, m, counts["full"], counts["points"], elapsed)
+    return PlanCheck(passed=not problems, min_clearance=min_clearance,
+                     argmin={s: where[i] for i, s in enumerate(SURFACES)}, max_vertex_step=max_vstep,
+                     axes_pose_error=axes_error, start_outside=start_outside, final_pose_error=final_error,
+                     samples=N, vertices=m, full_evaluations=counts["full"], exact_evaluations=counts["points"],
+                     threshold=float(threshold), elapsed=elapsed, message="; ".join(problems) or "ok")
