@@ -35,5 +35,5 @@ setup(
     description="Five-axis EDM electrode path planning for integral shrouded blisks (ROS 2 Jazzy).",
     license="Apache-2.0",
     tests_require=["pytest"],
-    entry_points={"console_scripts": [f"{name} = {target}" for name, target in NODES.items()]},
+    entry_points={"console_scripts": [f"{name} = {target}" for name, target in NODES.items()] + ["edm-plan = edm_planner.cli:main"]},
 )

@@ -1,0 +1,129 @@
+"""``edm-plan``: the command line of the planner (no ROS needed).
+
+``edm-plan plan --geometry FILE.yaml --channel K --out DIR`` plans one channel
+and writes the plan export (:mod:`edm_planner.planning.export`). Progress goes
+to stderr, a short summary to stdout. Exit status: 0 on success, otherwise the
+:class:`~edm_planner.errors.ErrorCode` value (1 .. 8; argparse's own usage
+errors exit with 2), with ``error: NAME: message`` on stderr. A failed plan is
+still written (error code, message, where the search stopped) for diagnosis;
+``read_plan`` refuses it.
+"""
+
+import argparse
+import logging
+import os
+import sys
+import time
+
+from .errors import EdmError, ErrorCode
+from .interference import SURFACES
+
+DEFAULT_CACHE = os.path.join(os.path.expanduser("~"), ".cache", "edm_planner")
+
+
+def _parser():
+    from .planning.search import METHODS, REFERENCES, SearchOptions
+
+    d = SearchOptions()
+    p = argparse.ArgumentParser(prog="edm-plan", description="Five-axis EDM electrode path planning for "
+                                                             "shrouded blisks (units mm, rad, s).")
+    sub = p.add_subparsers(dest="command", required=True)
+    q = sub.add_parser("plan", help="plan one channel and write the plan export directory",
+                       description="Plan one channel: backward exit search, C2 spline, continuous certification; "
+                                   "writes plan.json, electrode.stl, workpiece.stl and axes.csv to --out.")
+    q.add_argument("--geometry", required=True, metavar="FILE.yaml", help="blisk geometry file")
+    q.add_argument("--channel", required=True, type=int, metavar="K", help="channel index 0 .. blade_count-1")
+    q.add_argument("--out", required=True, metavar="DIR", help="export directory (created)")
+    q.add_argument("--electrode", default="", metavar="ID", help="electrode id (default: the first)")
+    q.add_argument("--method", choices=METHODS, default=d.method)
+    q.add_argument("--reference", choices=REFERENCES, default=d.reference, help="reference direction")
+    q.add_argument("--axes", type=int, choices=(4, 5, 6), default=d.axes, help="machine axes")
+    q.add_argument("--step", type=float, default=d.step, metavar="MM", help="node step along the reference")
+    q.add_argument("--exit-side", choices=("auto", "upstream", "downstream"), default=d.exit_side)
+    q.add_argument("--margin-blade", type=float, default=d.margin_blade, metavar="MM", help="Delta2")
+    q.add_argument("--margin-hub-shroud", type=float, default=d.margin_hub_shroud, metavar="MM", help="Delta1")
+    q.add_argument("--seed", type=int, default=d.seed, metavar="N")
+    q.add_argument("--time-budget", type=float, default=d.time_budget, metavar="S")
+    q.add_argument("--size-electrode", action="store_true",
+                   help="find the smallest circumferential reduction with a certified path")
+    q.add_argument("--cache-dir", default=DEFAULT_CACHE, metavar="DIR", help="distance field cache")
+    q.add_argument("-v", "--verbose", action="store_true", help="log the planner's steps to stderr")
+    return p
+
+
+class _Progress:
+    """Progress lines on stderr: one per stage change, message, or 10 % advance."""
+
+    def __init__(self, stream):
+        self.stream, self.t0, self.last = stream, time.perf_counter(), (None, -1.0)
+
+    def __call__(self, stage, fraction, nodes, reference_mm, message):
+        stage_then, fraction_then = self.last
+        if stage == stage_then and not message and fraction < fraction_then + 0.1:
+            return
+        self.last = (stage, fraction)
+        print(f"[{time.perf_counter() - self.t0:6.1f} s] {stage:<8} {100 * fraction:5.1f} %  nodes {nodes:5d}  "
+              f"reference {reference_mm:7.2f} mm  {message}".rstrip(), file=self.stream, flush=True)
+
+
+def _plan(args, out, err):
+    from .geometry.loader import load_geometry
+    from .planning.export import write_plan
+    from .planning.plan import PlanOptions
+    from .planning.planner import plan_channel
+    from .planning.search import SearchOptions
+
+    try:
+        options = PlanOptions(search=SearchOptions(
+            method=args.method, reference=args.reference, axes=args.axes, step=args.step,
+            exit_side=args.exit_side, margin_blade=args.margin_blade, margin_hub_shroud=args.margin_hub_shroud,
+            seed=args.seed, time_budget=args.time_budget), size_electrode=args.size_electrode)
+    except ValueError as exc:
+        raise EdmError(ErrorCode.INVALID_REQUEST, str(exc)) from None
+    progress = _Progress(err)
+    progress("load", 0.0, 0, 0.0, args.geometry)
+    geometry = load_geometry(args.geometry)
+    if not 0 <= args.channel < geometry.blisk.blade_count:
+        raise EdmError(ErrorCode.INVALID_REQUEST,
+                       f"--channel must be in 0 .. {geometry.blisk.blade_count - 1}, got {args.channel}")
+    try:
+        os.makedirs(args.cache_dir, exist_ok=True)
+    except OSError as exc:
+        raise EdmError(ErrorCode.FILE_ERROR, f"--cache-dir {args.cache_dir}: {exc}") from None
+    plan = plan_channel(geometry, args.channel, args.electrode, options, progress=progress,
+                        cache_dir=args.cache_dir)
+    path = write_plan(plan, args.out, geometry.blisk)
+    progress("export", 1.0, plan.metrics.node_count, 0.0, str(path.parent))
+    if not plan.success:
+        raise EdmError(plan.error_code, f"{plan.message} (furthest node {plan.furthest_node}, "
+                                        f"{plan.furthest_reference:.3f} mm); diagnostics written to {path.parent}")
+    m = plan.metrics
+    clear = ", ".join(f"{s} {v:.4f}" for s, v in zip(SURFACES, m.min_clearance))
+    print(f"plan {plan.plan_id}: channel {plan.channel}, electrode {plan.electrode_id}, "
+          f"method {options.search.method}, {len(plan.samples)} samples, {m.node_count} nodes, "
+          f"path {m.path_length:.2f} mm, planned in {m.planning_time:.1f} s\n"
+          f"min clearance [mm]: {clear}\n"
+          f"circumferential reduction {m.circumferential_reduction:.4f} rad\n"
+          f"written to {path.parent}", file=out)
+    return 0
+
+
+def main(argv=None, out=None, err=None):
+    """Entry point of ``edm-plan``; returns the exit status."""
+    out = out or sys.stdout
+    err = err or sys.stderr
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=err,
+                        format="%(name)s: %(message)s")
+    try:
+        return _plan(args, out, err)
+    except EdmError as exc:
+        print(f"error: {exc.code.name}: {exc.message}", file=err)
+        return int(exc.code)
+    except KeyboardInterrupt:
+        print("error: interrupted", file=err)
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
