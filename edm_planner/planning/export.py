@@ -374,13 +374,18 @@ def read_plan(path, require_success=True):
     check_rigid(poses, f"{pj}: samples")
     final = _matrix(doc["final_pose"], (4, 4), f"{pj}: final_pose")
     check_rigid(final, f"{pj}: final_pose")
-    nodes = np.array(doc.get("nodes") or np.zeros((0, k)), dtype=np.float64).reshape(-1, k)
+    try:
+        nodes = np.array(doc.get("nodes") or np.zeros((0, k)), dtype=np.float64).reshape(-1, k)
+    except (TypeError, ValueError):
+        raise PlanFileError(f"{pj}: nodes must be a list of {k} axis values per node") from None
     # the companion files: the electrode that plan.json names, the same axis values in axes.csv
     files = doc["files"]
+    if not isinstance(files, dict) or not isinstance(files.get("electrode"), dict):
+        raise PlanFileError(f"{pj}: files must name the electrode file and its sha256")
     el = path / FILES["electrode"]
     if not el.is_file():
         raise PlanFileError(f"{el}: no such file")
-    if _sha256(el) != files.get("electrode", {}).get("sha256"):
+    if _sha256(el) != files["electrode"].get("sha256"):
         raise PlanFileError(f"{el}: sha256 differs from the one plan.json records (file replaced or damaged)")
     try:
         mesh = _load_stl(el)
@@ -500,6 +505,8 @@ def verify_exported_plan(path, blisk, threshold=0.0, max_step=MAX_VERTEX_STEP, a
     max_step : float
         Largest vertex move between consecutive samples accepted [mm].
     anchor_stride : int
+        Samples between anchors evaluated in full (fewer for meshes of over ~12000 vertices, to bound
+        memory); the bisection between them adapts, so this changes the time little.
     geometry_id : str, optional
         Must equal the plan's geometry id when given.
 
@@ -550,7 +557,9 @@ def verify_exported_plan(path, blisk, threshold=0.0, max_step=MAX_VERTEX_STEP, a
         # the closest-point solver is fastest on batches of about a thousand points
         return np.vstack([exact.clearances(points[i:i + 1000], ch) for i in range(0, len(points), 1000)])
 
-    anchors = sorted(set(range(0, N, max(1, int(anchor_stride)))) | {N - 1})
+    # an interval's arrays hold (stride, m, 4) floats: keep them to ~100 MB for large meshes
+    stride = max(2, min(int(anchor_stride), 3_000_000 // max(m, 1)))
+    anchors = sorted(set(range(0, N, stride)) | {N - 1})
     values = {}                       # sample -> (m, 4) lower bounds, exact where evaluated
     best = np.full(4, np.inf)
     where = [(-1, -1)] * 4
