@@ -39,3 +39,9 @@ def node_processes(tmp_path):
         yield procs
     finally:
         procs.stop()
+
+
+@pytest.fixture(scope="session")
+def field_cache(tmp_path_factory):
+    """One distance-field cache directory for the whole run: each geometry's field is built once."""
+    return str(tmp_path_factory.mktemp("field_cache"))

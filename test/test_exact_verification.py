@@ -26,8 +26,8 @@ def default():
 
 
 @pytest.fixture(scope="module")
-def field(default, tmp_path_factory):
-    return FastChannelField(default.blisk, spacing=0.1, cache_dir=tmp_path_factory.mktemp("fast"),
+def field(default, field_cache):
+    return FastChannelField(default.blisk, spacing=0.1, cache_dir=field_cache,
                             cache_key=default.geometry_id)
 
 

@@ -14,9 +14,9 @@ from conftest import CONFIG
 
 
 @pytest.fixture(scope="module")
-def setup(tmp_path_factory):
+def setup(field_cache):
     g = load_geometry(CONFIG / "default_blisk.yaml")
-    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=str(tmp_path_factory.mktemp("field")),
+    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache,
                              cache_key=g.geometry_id)
     return g, field
 

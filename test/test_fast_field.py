@@ -49,14 +49,14 @@ def rotor37():
 
 
 @pytest.fixture(scope="module")
-def field(default, tmp_path_factory):
-    return FastChannelField(default.blisk, spacing=0.1, cache_dir=tmp_path_factory.mktemp("fast"),
+def field(default, field_cache):
+    return FastChannelField(default.blisk, spacing=0.1, cache_dir=field_cache,
                             cache_key=default.geometry_id)
 
 
 @pytest.fixture(scope="module")
-def field37(rotor37):
-    return FastChannelField(rotor37.blisk, spacing=0.3)
+def field37(rotor37, field_cache):
+    return FastChannelField(rotor37.blisk, spacing=0.3, cache_dir=field_cache, cache_key=rotor37.geometry_id)
 
 
 @pytest.fixture(scope="module")

@@ -21,12 +21,12 @@ PITCH = 2 * np.pi / 60
 
 
 @pytest.fixture(scope="module")
-def system(tmp_path_factory):
+def system(tmp_path_factory, field_cache):
     """geometry_loader (default blisk) + interference_checker + a client, for the whole module."""
     from ros_harness import InProcessRos
 
     ros = InProcessRos()
-    cache = tmp_path_factory.mktemp("cache")
+    cache = field_cache
     ros.add(GeometryLoaderNode(context=ros.context))
     ros.add(InterferenceCheckerNode(context=ros.context, parameter_overrides=[
         Parameter("cache_dir", value=str(cache)), Parameter("max_poses", value=2000)]))

@@ -32,11 +32,11 @@ def rear_design(**changes):
 
 
 @pytest.fixture(scope="module")
-def system(tmp_path_factory):
+def system(tmp_path_factory, field_cache):
     from ros_harness import InProcessRos
 
     ros = InProcessRos()
-    cache = tmp_path_factory.mktemp("cache")
+    cache = field_cache
     exports = tmp_path_factory.mktemp("plans")
     ros.add(GeometryLoaderNode(context=ros.context))
     ros.add(TrajectoryPlannerNode(context=ros.context, parameter_overrides=[

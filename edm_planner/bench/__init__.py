@@ -129,3 +129,46 @@ def bench_interference():
 
 
 SUITES = {"geometry": bench_geometry, "interference": bench_interference}
+
+
+def bench_planning(methods=("default", "ga", "max_min_distance", "max_free_distance")):
+    """Issue 4: every method on the same channel of the default blisk, side by side.
+
+    The default blisk's primitive electrode cannot leave its 104-degree channel;
+    the benchmark plans the rear electrode of a front/rear split (h = 0.03 rad,
+    radial reduction 3 mm), 5 axes, step 0.1 mm, exit downstream. The distance
+    field is built (or loaded from the cache) before the clock starts.
+    """
+    import os
+
+    from ..geometry.electrode import ElectrodeDesign, design_electrodes
+    from ..geometry.loader import load_geometry
+    from ..interference.fast import FastChannelField
+    from ..planning.plan import PlanOptions
+    from ..planning.planner import plan_channel
+    from ..planning.search import SearchOptions
+
+    g = load_geometry(CONFIG / "default_blisk.yaml")
+    cache = os.path.join(os.path.expanduser("~"), ".cache", "edm_planner")
+    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=cache, cache_key=g.geometry_id)
+    design = ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, split="front_rear",
+                             split_overlap=1.0)
+    design_electrodes(g.blisk, design)                    # numba warm-up outside the clock
+    out = {"electrode": "rear", "design": design.to_dict(), "axes": 5, "step_mm": 0.1, "exit_side": "downstream"}
+    for method in methods:
+        opts = PlanOptions(search=SearchOptions(method=method, step=0.1, exit_side="downstream", time_budget=900.0))
+        plan = plan_channel(g, 0, "rear", opts, field=field, design=design)
+        m = plan.metrics
+        out[method] = {
+            "result": plan.error_code.name, "planning_s": round(m.planning_time, 2), "nodes": m.node_count,
+            "samples": len(plan.samples), "objfun1": round(m.objfun1, 4), "objfun2": round(m.objfun2, 3),
+            "smoothness_per_axis": dict(zip(m.axis_names, (float(f"{v:.4g}") for v in m.smoothness))),
+            "sharp_points_per_axis": dict(zip(m.axis_names, m.sharp_points)),
+            "min_clearance_mm": {k: round(v, 4) for k, v in m.min_clearance_by_surface.items()},
+            "path_length_mm": round(m.path_length, 2), "evaluations": m.solver_evaluations,
+            "message": plan.message[:200]}
+        _log.warning("planning %s: %s", method, out[method])
+    return out
+
+
+SUITES["planning"] = bench_planning

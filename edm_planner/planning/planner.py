@@ -157,8 +157,8 @@ def plan_channel(geometry, channel=0, electrode_id="", options=None, field=None,
     electrode = _pick(electrodes, electrode_id)
     if options.size_electrode:
         return _size(geometry, channel, electrode.electrode_id, options, field, progress, base_design, t0)
-    plan = _plan_one(geometry, channel, electrode, options, field, progress, base_design, t0)
-    return plan
+    # planning time: search, fit and certification (the field and the electrode exist by now)
+    return _plan_one(geometry, channel, electrode, options, field, progress, base_design, time.perf_counter())
 
 
 def _pick(electrodes, electrode_id):

@@ -74,6 +74,7 @@ class SearchOptions:
     time_budget: float = 60.0
     max_nodes: int = 5000
     search_points: int = 1500                # electrode sample points used while searching
+    cushion_extra: float = 0.05              # mm of slack beyond the start's that the default method seeks
     search_allowance: float = 0.01           # mm added to the margins while searching: the vertices
                                              # between the search points may come a little closer
 
@@ -88,7 +89,7 @@ class SearchOptions:
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
-        for name in ("margin_hub_shroud", "margin_blade", "search_allowance"):
+        for name in ("margin_hub_shroud", "margin_blade", "search_allowance", "cushion_extra"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"{name} must be >= 0 mm, got {v!r}")
@@ -417,8 +418,9 @@ class ExitSearch:
                                 f"{self.bound * 1e3:.1f} um)", start[None], m0, evaluations=self.evaluations,
                                 blocking_surface=SURFACES[j], blocking_clearance=float(m0[0, j]),
                                 elapsed=time.perf_counter() - t0)
-        # the default method keeps, where the channel allows, the slack the electrode has at its machining pose
-        self.cushion = float(min((m0[0] - self.margins - self.bound).min(), 0.5))
+        # the default method keeps, where the channel allows, a little more slack than the electrode has at its
+        # machining pose (where every method starts): smooth where there is room, never closer than it starts
+        self.cushion = float(min((m0[0] - self.margins - self.bound).min() + self.options.cushion_extra, 0.5))
         sides = {"downstream": [1], "upstream": [-1], "auto": [1, -1]}[o.exit_side]
         results = [self._run_side(start, m0[0], side, t0, progress) for side in sides]
         done = [r for r in results if r.status == SearchStatus.SUCCESS]
