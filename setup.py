@@ -15,6 +15,9 @@ NODES = {
     "trajectory_planner": "edm_planner.nodes.trajectory_planner:main",
 }
 
+# Command-line tools (bin/ only, not ROS nodes).
+COMMANDS = ["edm-plan = edm_planner.cli:main"]
+
 setup(
     name=PACKAGE,
     version="0.1.0",
@@ -35,5 +38,5 @@ setup(
     description="Five-axis EDM electrode path planning for integral shrouded blisks (ROS 2 Jazzy).",
     license="Apache-2.0",
     tests_require=["pytest"],
-    entry_points={"console_scripts": [f"{name} = {target}" for name, target in NODES.items()] + ["edm-plan = edm_planner.cli:main"]},
+    entry_points={"console_scripts": [f"{name} = {target}" for name, target in NODES.items()] + COMMANDS},
 )

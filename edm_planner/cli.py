@@ -46,6 +46,13 @@ def _parser():
     q.add_argument("--time-budget", type=float, default=d.time_budget, metavar="S")
     q.add_argument("--size-electrode", action="store_true",
                    help="find the smallest circumferential reduction with a certified path")
+    e = q.add_argument_group("electrode design overrides (default: the geometry file's electrode section)")
+    e.add_argument("--discharge-gap", type=float, metavar="MM")
+    e.add_argument("--circumferential-reduction", type=float, metavar="RAD", help="h; the start value with "
+                                                                                 "--size-electrode")
+    e.add_argument("--radial-reduction", type=float, metavar="MM")
+    e.add_argument("--split", choices=("none", "left_right", "front_rear"))
+    e.add_argument("--split-overlap", type=float, metavar="MM")
     q.add_argument("--cache-dir", default=DEFAULT_CACHE, metavar="DIR", help="distance field cache")
     q.add_argument("-v", "--verbose", action="store_true", help="log the planner's steps to stderr")
     return p
@@ -64,6 +71,15 @@ class _Progress:
         self.last = (stage, fraction)
         print(f"[{time.perf_counter() - self.t0:6.1f} s] {stage:<8} {100 * fraction:5.1f} %  nodes {nodes:5d}  "
               f"reference {reference_mm:7.2f} mm  {message}".rstrip(), file=self.stream, flush=True)
+
+
+def _design(args, base):
+    """The geometry's electrode design with the command line's overrides, or None without any."""
+    from dataclasses import replace
+
+    keys = ("discharge_gap", "circumferential_reduction", "radial_reduction", "split", "split_overlap")
+    changes = {k: getattr(args, k) for k in keys if getattr(args, k) is not None}
+    return replace(base, **changes) if changes else None
 
 
 def _plan(args, out, err):
@@ -91,7 +107,7 @@ def _plan(args, out, err):
     except OSError as exc:
         raise EdmError(ErrorCode.FILE_ERROR, f"--cache-dir {args.cache_dir}: {exc}") from None
     plan = plan_channel(geometry, args.channel, args.electrode, options, progress=progress,
-                        cache_dir=args.cache_dir)
+                        cache_dir=args.cache_dir, design=_design(args, geometry.design))
     path = write_plan(plan, args.out, geometry.blisk)
     progress("export", 1.0, plan.metrics.node_count, 0.0, str(path.parent))
     if not plan.success:

@@ -174,3 +174,12 @@ def test_smoothness_figures_count_reversals():
     squared, sharp = smoothness_figures(values)
     assert squared[0] == pytest.approx(9 * (2 * 0.01) ** 2)
     assert sharp == (0, 2)
+
+
+def test_centerline_reference_follows_the_channel(default, plan5):
+    p = rear_plan(default, channel=5, reference="centerline")
+    assert p.success, p.message
+    assert p.plan_id != plan5.plan_id
+    assert min(p.metrics.min_clearance) >= 0.02 and vertex_steps(p).max() <= 0.05 + 1e-9
+    # stepping along the curved centerline instead of X: a different path out of the same channel
+    assert not np.allclose(p.samples[0], plan5.samples[0], atol=0.1)

@@ -27,6 +27,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline, make_smoothing_spline
 
 from ..errors import EdmError, ErrorCode
+from ..geometry.centerline import channel_centerline
 from ..geometry.electrode import design_electrodes
 from ..geometry.frames import rotation_about_x
 from ..interference.fast import FastChannelField
@@ -183,7 +184,8 @@ def _plan_one(geometry, channel, electrode, options, field, progress, design, t0
     budget = so.time_budget if time_budget is None else time_budget
     pid = plan_id_for(geometry.geometry_id, channel, electrode.electrode_id, options, design)
     search_opts = replace(so, time_budget=max(budget - (time.perf_counter() - t0), 1e-3))
-    search = ExitSearch(blisk, electrode, field, search_opts)
+    centerline = channel_centerline(blisk) if so.reference == "centerline" else None
+    search = ExitSearch(blisk, electrode, field, search_opts, centerline=centerline)
 
     def on_search(fraction, nodes, reference):
         _report(progress, "search", fraction, nodes, reference)

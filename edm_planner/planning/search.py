@@ -68,13 +68,15 @@ class SearchOptions:
     exit_distance: float = 2.0
     exit_side: str = "auto"                  # "downstream" (+X), "upstream" (-X) or "auto"
     lateral_ratio: float = 3.0               # largest lateral move per unit step
-    angle_step: float = 0.02                 # largest A/C/B change per node [rad]
+    angle_step: float = 0.02                 # largest C/B change per node [rad]
+    a_step: float = 0.004                    # largest A change per node [rad]: A turns the whole blisk, at a
+                                             # radius of ~100 mm its step equals a lateral step of ~0.4 mm
     weights: Weights = field(default_factory=Weights)
     seed: int = 0
     time_budget: float = 60.0
     max_nodes: int = 5000
     search_points: int = 1500                # electrode sample points used while searching
-    cushion_extra: float = 0.05              # mm of slack beyond the start's that the default method seeks
+    cushion_extra: float = 0.2              # mm of slack beyond the start's that the default method seeks
     search_allowance: float = 0.01           # mm added to the margins while searching: the vertices
                                              # between the search points may come a little closer
 
@@ -85,7 +87,8 @@ class SearchOptions:
             raise ValueError(f"reference must be one of {REFERENCES}, got {self.reference!r}")
         if self.axes not in FREE_AXES:
             raise ValueError(f"axes must be 4, 5 or 6, got {self.axes!r}")
-        for name in ("step", "min_step", "exit_distance", "lateral_ratio", "angle_step", "time_budget"):
+        for name in ("step", "min_step", "exit_distance", "lateral_ratio", "angle_step", "a_step",
+                     "time_budget"):
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
@@ -170,7 +173,8 @@ class ExitSearch:
         x0, x1 = blisk.axial_range
         self.blisk_x = (x0, x1)
         # free-variable step bounds: lateral [mm] (per unit step), angles [rad]
-        self.scale = np.array([o.lateral_ratio, o.lateral_ratio] + [o.angle_step] * (self.k - 2))
+        angles = {4: [o.angle_step], 5: [o.a_step, o.angle_step], 6: [o.a_step, o.angle_step, o.angle_step]}
+        self.scale = np.array([o.lateral_ratio, o.lateral_ratio] + angles[o.axes])
         self.cushion = np.inf
 
     # -- evaluation of candidate states ---------------------------------------------
@@ -235,9 +239,8 @@ class ExitSearch:
 
     # -- the per-node objective ------------------------------------------------------
     def _objective(self, d, incr, prev_incr):
-        o, w = self.options, self.options.weights
-        if o.method == "max_min_distance":
-            return -(d.min(axis=1) - self.margins).min(axis=1)
+        """Huang's Objfun (eq. 6) and its terms Objfun1 (eq. 4), Objfun2 (eq. 5) per candidate."""
+        w = self.options.weights
         sw = np.array(list(w.smoothness[:2]) + [w.smoothness[2] / (self.k - 2)] * (self.k - 2))
         f1 = smoothness(incr, prev_incr, 2 * self.scale, sw)
         f2 = margin(d[:, self.labels == 0, 0], d[:, self.labels == 1, 1], w.margin)
@@ -293,13 +296,14 @@ class ExitSearch:
         cost_f1 = sw / (2 * self.scale)
         eps = 1e-3 * self.scale
         feasible = []                                      # (x, smallest slack)
+        predicted = np.inf                                 # the LP's smallest slack at its step
         for it in range(iterations + 1):
             trial = np.vstack([x0, x0 + np.diag(eps), x0 - np.diag(eps)])
             slack = self._slack(self._candidates(state, trial, step, frame)).reshape(2 * k + 1, -1)
             s0 = slack[0]
             if s0.min() >= 0:
                 feasible.append((x0, float(s0.min())))
-                if it > 0 and o.method != "max_min_distance":
+                if it > 0 and o.method != "max_min_distance" and s0.min() >= min(cap, predicted) - 0.002:
                     break                                  # the LP's step, confirmed by the field
             if it == iterations:
                 break
@@ -309,7 +313,8 @@ class ExitSearch:
             active = np.nonzero(s0 - reach <= s0.min() + 1e-3)[0]
             if len(active) > 800:
                 active = active[np.argsort(s0[active] - reach[active])[:800]]
-            x = self._lp_step(s0[active], jac[active], x0, prev_incr, rho, cap, cost_f1, o.method)
+            step_lp = self._lp_step(s0[active], jac[active], x0, prev_incr, rho, cap, cost_f1, o.method)
+            x, predicted = step_lp if step_lp is not None else (None, -np.inf)
             if x is None or np.allclose(x, x0, rtol=0, atol=1e-7):
                 break
             x0 = x
@@ -344,7 +349,7 @@ class ExitSearch:
         res = linprog(c, A_ub=a_ub, b_ub=s0, A_eq=a_eq, b_eq=prev - x0, bounds=bounds, method="highs")
         if res.status != 0:
             return None
-        return x0 + res.x[:k]
+        return x0 + res.x[:k], float(res.x[-1])
 
     def _solve_node_ga(self, state, prev_incr, step, frame):
         rng = self._rng
@@ -368,9 +373,8 @@ class ExitSearch:
         return res.x
 
     def _solve_node_pattern(self, state, prev_incr, step, frame):
-        o = self.options
+        """Kang's max_free_distance: vectorised pattern search around the warm start for the longest free travel."""
         rng = self._rng
-        # default and baselines: vectorised pattern search around the warm start
         best = np.clip(prev_incr, -self.scale, self.scale)
         spread = 0.25 * self.scale
         best_val, best_ok = None, False
@@ -380,15 +384,9 @@ class ExitSearch:
             trial = np.clip(trial, -self.scale, self.scale)
             states = self._candidates(state, trial, step, frame)
             d, mins, ok = self._assess(states)
-            if o.method == "max_free_distance":
-                val = np.full(len(trial), np.inf)
-                if ok.any():
-                    val[ok] = -self._free_travel(states[ok], step, frame) \
-                        - 1e-3 * (mins[ok] - self.margins).min(axis=1)
-            else:
-                val = self._objective(d, trial, prev_incr)
-                val = val[0] if isinstance(val, tuple) else val
-                val = np.where(ok, val, np.inf)
+            val = np.full(len(trial), np.inf)
+            if ok.any():
+                val[ok] = -self._free_travel(states[ok], step, frame) - 1e-3 * (mins[ok] - self.margins).min(axis=1)
             if np.isfinite(val).any():
                 i = int(np.argmin(val))
                 if best_val is None or val[i] < best_val:
@@ -465,10 +463,9 @@ class ExitSearch:
                 continue
             new = self._candidates(state, incr[None], step, frame)
             d, mins, ok = self._assess(new)
-            val = self._objective(d, incr[None], prev_incr)
-            if isinstance(val, tuple):
-                f1_sum += float(val[1][0])
-                f2_sum += float(val[2][0])
+            _, f1, f2 = self._objective(d, incr[None], prev_incr)       # Huang's terms, for every method
+            f1_sum += float(f1[0])
+            f2_sum += float(f2[0])
             states.append(new[0])
             clears.append(mins[0])
             prev_incr = incr
