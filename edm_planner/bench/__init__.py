@@ -131,7 +131,13 @@ def bench_interference():
 SUITES = {"geometry": bench_geometry, "interference": bench_interference}
 
 
-def bench_planning(methods=("default", "ga", "max_min_distance", "max_free_distance")):
+PLANNING_RUNS = (("default", "default", {}), ("ga", "ga", {}), ("max_min_distance", "max_min_distance", {}),
+                 ("max_free_distance", "max_free_distance", {}),
+                 # the GA again with the wider A bound it was first tuned with (same as C's, 0.02 rad per node)
+                 ("ga_a_step_0.02", "ga", {"a_step": 0.02}))
+
+
+def bench_planning(runs=PLANNING_RUNS):
     """Issue 4: every method on the same channel of the default blisk, side by side.
 
     The default blisk's primitive electrode cannot leave its 104-degree channel;
@@ -155,19 +161,20 @@ def bench_planning(methods=("default", "ga", "max_min_distance", "max_free_dista
                              split_overlap=1.0)
     design_electrodes(g.blisk, design)                    # numba warm-up outside the clock
     out = {"electrode": "rear", "design": design.to_dict(), "axes": 5, "step_mm": 0.1, "exit_side": "downstream"}
-    for method in methods:
-        opts = PlanOptions(search=SearchOptions(method=method, step=0.1, exit_side="downstream", time_budget=900.0))
+    for label, method, extra in runs:
+        opts = PlanOptions(search=SearchOptions(method=method, step=0.1, exit_side="downstream", time_budget=900.0,
+                                                **extra))
         plan = plan_channel(g, 0, "rear", opts, field=field, design=design)
         m = plan.metrics
-        out[method] = {
-            "result": plan.error_code.name, "planning_s": round(m.planning_time, 2), "nodes": m.node_count,
+        out[label] = {
+            "method": method, "options": extra, "result": plan.error_code.name, "planning_s": round(m.planning_time, 2), "nodes": m.node_count,
             "samples": len(plan.samples), "objfun1": round(m.objfun1, 4), "objfun2": round(m.objfun2, 3),
             "smoothness_per_axis": dict(zip(m.axis_names, (float(f"{v:.4g}") for v in m.smoothness))),
             "sharp_points_per_axis": dict(zip(m.axis_names, m.sharp_points)),
             "min_clearance_mm": {k: round(v, 4) for k, v in m.min_clearance_by_surface.items()},
             "path_length_mm": round(m.path_length, 2), "evaluations": m.solver_evaluations,
             "message": plan.message[:200]}
-        _log.warning("planning %s: %s", method, out[method])
+        _log.warning("planning %s: %s", label, out[label])
     return out
 
 
