@@ -298,8 +298,9 @@ class ExitSearch:
         feasible = []                                      # (x, smallest slack)
         predicted = np.inf                                 # the LP's smallest slack at its step
         for it in range(iterations + 1):
-            trial = np.vstack([x0, x0 + np.diag(eps), x0 - np.diag(eps)])
-            slack = self._slack(self._candidates(state, trial, step, frame)).reshape(2 * k + 1, -1)
+            # forward differences: the field is trilinear, its cell gradient is what a step sees
+            trial = np.vstack([x0, x0 + np.diag(eps)])
+            slack = self._slack(self._candidates(state, trial, step, frame)).reshape(k + 1, -1)
             s0 = slack[0]
             if s0.min() >= 0:
                 feasible.append((x0, float(s0.min())))
@@ -307,7 +308,7 @@ class ExitSearch:
                     break                                  # the LP's step, confirmed by the field
             if it == iterations:
                 break
-            jac = ((slack[1:k + 1] - slack[k + 1:]) / (2 * eps[:, None])).T                   # (m, k)
+            jac = ((slack[1:] - s0) / eps[:, None]).T                                          # (m, k)
             # near-critical constraints: those a move within the trust region can bring down to the minimum
             reach = np.abs(jac) @ (2.0 * rho)
             active = np.nonzero(s0 - reach <= s0.min() + 1e-3)[0]
