@@ -1,0 +1,238 @@
+"""Machine config, toppra time law and joint trajectories (core, no rclpy)."""
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from edm_planner.errors import EdmError, ErrorCode
+from edm_planner.machine.config import default_machine_path, load_machine, parse_machine
+from edm_planner.machine.timing import TimingOptions, check_limits, time_parameterize
+from edm_planner.machine.trajectory import plan_trajectory
+
+AXES = ("X", "Y", "Z", "A", "C")
+MACHINE_YAML = default_machine_path().read_text()
+
+
+@pytest.fixture(scope="module")
+def machine():
+    return load_machine(default_machine_path())
+
+
+def vmax(machine, names=AXES):
+    return np.array([lim.velocity_max for lim in machine.limits_for(names)])
+
+
+def amax(machine, names=AXES):
+    return np.array([lim.acceleration_max for lim in machine.limits_for(names)])
+
+
+def line(length=50.0, n=1001):
+    """Straight feed along -X (the exit of an axial channel), 5 axes."""
+    q = np.zeros((n, 5))
+    q[:, 0] = np.linspace(length, 0.0, n)
+    return q
+
+
+def curved(n=1500):
+    s = np.linspace(0.0, 1.0, n)
+    return np.stack([50 * (1 - s), 5 * np.sin(3 * s), 2 * s ** 2, 0.3 * s, 0.2 * np.sin(2 * s)], axis=1)
+
+
+# -- config ------------------------------------------------------------------------------------
+def test_default_machine(machine):
+    assert machine.joint_names(AXES) == ["edm_x", "edm_y", "edm_z", "edm_a", "edm_c"]
+    x, a = machine.axes["X"], machine.axes["A"]
+    assert (x.position_min, x.position_max, x.velocity_max, x.acceleration_max, x.jerk_max) == (
+        -250.0, 250.0, 10.0, 20.0, 200.0)
+    assert (a.unit, a.velocity_max, a.acceleration_max) == ("rad", 0.5, 1.0)
+    assert machine.a_zero == 0.0 and machine.c_pivot == (0.0, 0.0, 0.0)
+    # every channel of a 60-blade blisk is inside A's travel
+    assert a.position_min < -2 * math.pi and a.position_max > 2 * math.pi
+
+
+@pytest.mark.parametrize("old, new, code, words", [
+    ("velocity_max_mm_s: 10.0\n    acceleration_max_mm_s2: 20.0\n    jerk_max_mm_s3: 200.0\n  Y:",
+     "velocity_max_mm_s: .nan\n    acceleration_max_mm_s2: 20.0\n    jerk_max_mm_s3: 200.0\n  Y:",
+     ErrorCode.INVALID_REQUEST, ["axes.X.velocity_max_mm_s", "finite"]),
+    ("min_mm: -250.0", "min_mm: 250.0", ErrorCode.INVALID_REQUEST, ["axes.X", "min_mm (250) must be below max_mm"]),
+    ("velocity_max_rad_s: 0.5\n    acceleration_max_rad_s2: 1.0\n    jerk_max_rad_s3: 10.0\n  C:",
+     "velocity_max_mm_s: 0.5\n    acceleration_max_rad_s2: 1.0\n    jerk_max_rad_s3: 10.0\n  C:",
+     ErrorCode.INVALID_REQUEST, ["axes.A", "unknown keys ['velocity_max_mm_s']", "rotary axis: use the _rad keys"]),
+    ("joint: edm_y", "joint: edm_x", ErrorCode.INVALID_REQUEST, ["joint names must be unique"]),
+    ("direction: 1                # +1", "direction: 2                # +1", ErrorCode.INVALID_REQUEST,
+     ["axes.X.direction", "+1 or -1"]),
+    ("  a_zero_rad: 0.0", "  a_zero_deg: 0.0", ErrorCode.INVALID_REQUEST, ["machine: unknown keys ['a_zero_deg']"]),
+    ("acceleration_max_mm_s2: 20.0\n    jerk_max_mm_s3: 200.0\n  Y:", "jerk_max_mm_s3: 200.0\n  Y:",
+     ErrorCode.INVALID_REQUEST, ["axes.X: missing keys ['acceleration_max_mm_s2']"]),
+    ("axes:", "axes: [", ErrorCode.FILE_ERROR, ["not valid YAML"]),
+])
+def test_machine_errors(tmp_path, old, new, code, words):
+    assert old in MACHINE_YAML
+    path = tmp_path / "machine.yaml"
+    path.write_text(MACHINE_YAML.replace(old, new, 1))
+    with pytest.raises(EdmError) as err:
+        load_machine(path)
+    assert err.value.code == code
+    for w in words:
+        assert w in err.value.message
+    assert str(path) in err.value.message
+
+
+def test_missing_machine_file_and_unconfigured_axis(tmp_path, machine):
+    with pytest.raises(EdmError) as err:
+        load_machine(tmp_path / "nope.yaml")
+    assert err.value.code == ErrorCode.FILE_ERROR and "nope.yaml" in err.value.message
+    with pytest.raises(EdmError) as err:
+        machine.limits_for(("X", "Y", "Z", "A", "C", "B"))
+    assert err.value.code == ErrorCode.INVALID_REQUEST and "['B'] not configured" in err.value.message
+
+
+# -- time law ----------------------------------------------------------------------------------
+def test_straight_line_is_time_optimal_and_at_rest(machine):
+    """Bang-coast-bang on a line: T = L/v + v/a exactly (with the whole limit given to toppra)."""
+    t = time_parameterize(line(), AXES, machine.limits_for(AXES), TimingOptions(limit_fraction=1.0))
+    assert t.duration == pytest.approx(50.0 / 10.0 + 10.0 / 20.0, rel=2e-3)
+    assert t.peak_velocity[0] == pytest.approx(10.0, rel=1e-3) and t.peak_velocity[0] <= 10.0 * (1 + 1e-6)
+    assert t.peak_acceleration[0] <= 20.0 * (1 + 1e-6) and t.peak_acceleration[0] > 19.9
+    np.testing.assert_array_equal(t.velocities[[0, -1]], 0.0)
+    np.testing.assert_array_equal(t.peak_velocity[1:], 0.0)
+    assert t.times[0] == 0.0 and np.all(np.diff(t.times) > 0)
+
+
+def check_trajectory(t, samples, v_lim, a_lim):
+    """Limits, rest, finite differences, measured deviation: the properties every timed plan must have."""
+    assert np.all(np.abs(t.velocities) <= v_lim * (1 + 1e-6))
+    assert np.all(np.abs(t.accelerations) <= a_lim * (1 + 1e-6))
+    assert np.all(t.peak_velocity <= v_lim * (1 + 1e-6)) and np.all(t.peak_acceleration <= a_lim * (1 + 1e-6))
+    np.testing.assert_array_equal(t.velocities[[0, -1]], 0.0)
+    assert t.times[0] == 0.0 and np.all(np.diff(t.times) > 0)
+    # the points are the certified samples (measured by evaluating toppra's trajectory at their times)
+    np.testing.assert_allclose(t.positions, samples[t.sample_index], atol=1e-9)
+    assert np.all(t.deviation_at_samples < 1e-9)
+    p, v, a, tt = t.positions, t.velocities, t.accelerations, t.times
+    span = (tt[2:] - tt[:-2])[:, None]
+    # central differences of positions: error bounded by a_max * dt (piecewise-constant path acceleration)
+    assert np.all(np.abs((p[2:] - p[:-2]) / span - v[1:-1]) <= 0.5 * a_lim * span)
+    # central differences of velocities: within 15 % of the limit where toppra switches, tiny elsewhere
+    err = np.abs((v[2:] - v[:-2]) / span - a[1:-1]) / a_lim
+    assert np.all(err < 0.15) and np.all(np.median(err, axis=0) < 1e-3)
+    return err
+
+
+def test_curved_path_limits_fd_and_deviation(machine):
+    q = curved()
+    t = time_parameterize(q, AXES, machine.limits_for(AXES))
+    check_trajectory(t, q, vmax(machine), amax(machine))
+    # the spline between samples stays within a micrometre of the chord (samples 0.03 mm apart)
+    assert np.all(t.deviation_between_samples[:3] < 1e-3) and np.all(t.deviation_between_samples[3:] < 1e-5)
+    assert t.deviation_between_samples.max() > 0          # measured, not assumed
+
+
+def test_plan_needing_more_than_a_limit_is_slowed(machine):
+    q = curved()
+    fast = time_parameterize(q, AXES, machine.limits_for(AXES))
+    # halve X's velocity limit: X now saturates at the new limit and the plan takes longer
+    slow_x = replace(machine, axes={**machine.axes, "X": replace(machine.axes["X"], velocity_max=5.0)})
+    slow = time_parameterize(q, AXES, slow_x.limits_for(AXES))
+    assert fast.peak_velocity[0] > 5.0 * 1.5
+    assert slow.peak_velocity[0] <= 5.0 * (1 + 1e-6) and slow.peak_velocity[0] > 5.0 * 0.99
+    assert slow.duration > fast.duration * 1.6
+    check_trajectory(slow, q, vmax(slow_x), amax(slow_x))
+    # a tighter acceleration limit lengthens the ramps the same way
+    soft = replace(machine, axes={**machine.axes, "X": replace(machine.axes["X"], acceleration_max=2.0)})
+    t = time_parameterize(line(), AXES, soft.limits_for(AXES), TimingOptions(limit_fraction=1.0))
+    assert t.duration == pytest.approx(50.0 / 10.0 + 10.0 / 2.0, rel=2e-3)
+
+
+def test_position_outside_travel_is_rejected_with_axis_and_time(machine):
+    short = replace(machine, axes={**machine.axes, "X": replace(machine.axes["X"], position_max=20.0)})
+    with pytest.raises(EdmError) as err:
+        time_parameterize(line(), AXES, short.limits_for(AXES))
+    assert err.value.code == ErrorCode.INFEASIBLE
+    msg = err.value.message
+    assert "axis X (joint edm_x)" in msg and "travel [-250, 20] mm" in msg
+    # the path starts at X = 50 outside the travel: the first violation is at t = 0
+    assert "at 50 mm" in msg and "t = 0.000 s" in msg
+    # a violation later on: reversed path (ends at X = 50); reported time is when X passes 20 mm
+    t_ok = time_parameterize(line()[::-1], AXES, machine.limits_for(AXES))
+    t_cross = np.interp(20.0, t_ok.positions[:, 0], t_ok.times)
+    with pytest.raises(EdmError) as err:
+        time_parameterize(line()[::-1], AXES, short.limits_for(AXES))
+    reported = float(err.value.message.split("t = ")[1].split(" s")[0])
+    assert reported == pytest.approx(t_cross, abs=0.01)
+
+
+def test_bad_paths(machine):
+    with pytest.raises(EdmError) as err:
+        time_parameterize(np.zeros((5, 5)), AXES, machine.limits_for(AXES))
+    assert err.value.code == ErrorCode.INVALID_REQUEST and "fewer than two distinct samples" in err.value.message
+    q = curved()
+    q[10, 2] = np.nan
+    with pytest.raises(EdmError) as err:
+        time_parameterize(q, AXES, machine.limits_for(AXES))
+    assert err.value.code == ErrorCode.INVALID_REQUEST
+    # repeated samples are dropped, not timed with zero duration
+    q = np.repeat(curved(300), 2, axis=0)
+    t = time_parameterize(q, AXES, machine.limits_for(AXES))
+    assert len(t.times) == 300 and np.all(t.sample_index == np.arange(0, 600, 2))
+
+
+def test_check_limits_names_axis_and_time(machine):
+    t = time_parameterize(curved(), AXES, machine.limits_for(AXES))
+    t.velocities[700, 4] = 0.75
+    with pytest.raises(EdmError) as err:
+        check_limits(t, machine.limits_for(AXES))
+    assert err.value.code == ErrorCode.INFEASIBLE
+    assert "axis C (joint edm_c) velocity 0.75 rad/s exceeds 0.5 rad/s" in err.value.message
+    assert f"t = {t.times[700]:.3f} s" in err.value.message
+
+
+def test_joint_directions_and_offsets(machine):
+    flipped = replace(machine, axes={**machine.axes, "Y": replace(machine.axes["Y"], direction=-1.0, offset=12.5)})
+    q = curved(400)
+    j = plan_trajectory(q, AXES, flipped)
+    plain = plan_trajectory(q, AXES, machine)
+    np.testing.assert_allclose(j.positions[:, 1], 12.5 - q[:, 1], atol=1e-9)
+    np.testing.assert_allclose(j.velocities[:, 1], -plain.velocities[:, 1])
+    np.testing.assert_allclose(j.accelerations[:, 1], -plain.accelerations[:, 1])
+    np.testing.assert_array_equal(j.positions[:, [0, 2, 3, 4]], plain.positions[:, [0, 2, 3, 4]])
+    assert j.joint_names == ["edm_x", "edm_y", "edm_z", "edm_a", "edm_c"]
+
+
+# -- a real certified plan -----------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def real_plan(field_cache):
+    from conftest import CONFIG
+    from edm_planner.geometry.electrode import ElectrodeDesign
+    from edm_planner.geometry.loader import load_geometry
+    from edm_planner.interference.fast import FastChannelField
+    from edm_planner.planning.plan import PlanOptions
+    from edm_planner.planning.planner import plan_channel
+    from edm_planner.planning.search import SearchOptions
+
+    g = load_geometry(CONFIG / "default_blisk.yaml")
+    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache, cache_key=g.geometry_id)
+    rear = ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, split="front_rear",
+                           split_overlap=1.0, resolution=1.0)
+    plan = plan_channel(g, 3, "rear", PlanOptions(search=SearchOptions(exit_side="downstream")), field=field,
+                        design=rear)
+    assert plan.success, plan.message
+    return plan
+
+
+def test_real_plan_timed_on_the_default_machine(real_plan, machine):
+    plan = real_plan
+    j = plan_trajectory(plan.samples, plan.axis_names, machine)
+    t = j.timed
+    check_trajectory(t, plan.samples, vmax(machine), amax(machine))
+    assert len(j.times) == len(plan.samples) > 1000
+    # first point the start pose outside the blisk, last the machining pose of channel 3, both at rest
+    np.testing.assert_allclose(j.positions[0], plan.samples[0], atol=1e-9)
+    np.testing.assert_allclose(j.positions[-1], [0, 0, 0, 3 * 2 * np.pi / 60, 0], atol=1e-9)
+    # some axis runs at its velocity or acceleration limit (time-optimal), none beyond
+    assert max(np.max(t.peak_velocity / vmax(machine)), np.max(t.peak_acceleration / amax(machine))) > 0.98
+    # measured deviation between samples from the certified chords: sub-micrometre / sub-microradian
+    assert np.all(t.deviation_between_samples[:3] < 1e-3) and np.all(t.deviation_between_samples[3:] < 1e-5)
+    assert 2.0 < j.duration < 60.0
