@@ -82,8 +82,11 @@ def fit_path(params, nodes, level):
             if np.ptp(y) <= 1e-12:
                 continue
             gcv = make_smoothing_spline(params, y)
-            lam = _gcv_lambda(gcv, params, y)
-            values[:, j] = make_smoothing_spline(params, y, lam=lam * level)(params)
+            if level == 1.0:
+                values[:, j] = gcv(params)
+            else:                                 # scipy does not return its GCV weight: recover it
+                lam = _gcv_lambda(gcv, params, y)
+                values[:, j] = make_smoothing_spline(params, y, lam=lam * level)(params)
         values[-1] = nodes[-1]
     return CubicSpline(params, values, bc_type="not-a-knot")
 
