@@ -176,6 +176,7 @@ class ExitSearch:
         angles = {4: [o.angle_step], 5: [o.a_step, o.angle_step], 6: [o.a_step, o.angle_step, o.angle_step]}
         self.scale = np.array([o.lateral_ratio, o.lateral_ratio] + angles[o.axes])
         self.cushion = np.inf
+        self.reach = float(np.linalg.norm(self.points, axis=1).max())    # lever of the rotations [mm]
 
     # -- evaluation of candidate states ---------------------------------------------
     def _poses(self, states):
@@ -184,10 +185,11 @@ class ExitSearch:
         c = states[:, 4] if self.options.axes >= 5 else states[:, 3]
         return state_poses(self.electrode.final_pose, states[:, :3], a, c, b)
 
-    def _distances(self, states):
-        """(n, m, 4) fast clearances of the search points for candidate states."""
+    def _distances(self, states, points=None):
+        """(n, m, 4) fast clearances of the search points (or of ``points``) for candidate states."""
+        points = self.points if points is None else points
         poses = self._poses(states)
-        world = np.einsum("pij,mj->pmi", poses[:, :3, :3], self.points) + poses[:, None, :3, 3]
+        world = np.einsum("pij,mj->pmi", poses[:, :3, :3], points) + poses[:, None, :3, 3]
         n, m, _ = world.shape
         self.evaluations += n
         return self.field.clearances(world.reshape(-1, 3), 0).reshape(n, m, 4)
@@ -272,15 +274,15 @@ class ExitSearch:
             return self._solve_node_lp(state, prev_incr, step, frame)
         return self._solve_node_pattern(state, prev_incr, step, frame)
 
-    def _slack(self, states):
+    def _slack(self, states, points=None):
         """(n, m, 4) slack of every search point to every surface: clearance - margin - field bound."""
-        return self._distances(states) - self.margins - self.bound
+        return self._distances(states, points) - self.margins - self.bound
 
     def _solve_node_lp(self, state, prev_incr, step, frame, iterations=5):
         """Sequential linear programming on the free increments.
 
         Linearise every near-critical point clearance in the free increments
-        (central differences on the fast field), then one LP (HiGHS): raise the
+        (forward differences on the fast field), then one LP (HiGHS): raise the
         smallest slack up to the cushion -- the slack the electrode has at its
         machining pose -- and, among those increments, take the one closest to
         the previous node's (Huang's Objfun1). ``max_min_distance`` raises the
@@ -297,24 +299,29 @@ class ExitSearch:
         eps = 1e-3 * self.scale
         feasible = []                                      # (x, smallest slack)
         predicted = np.inf                                 # the LP's smallest slack at its step
+        # no point moves more than this within the trust region (a slack is 1-Lipschitz in the move)
+        move = step * 2 * rho[0] + rho[2:].sum() * self.reach
         for it in range(iterations + 1):
-            # forward differences: the field is trilinear, its cell gradient is what a step sees
-            trial = np.vstack([x0, x0 + np.diag(eps)])
-            slack = self._slack(self._candidates(state, trial, step, frame)).reshape(k + 1, -1)
-            s0 = slack[0]
+            s0 = self._slack(self._candidates(state, x0[None], step, frame))[0]               # (m, 4)
+            # only points that can come near the smallest slack need a gradient
+            near = np.nonzero(s0.min(axis=1) <= s0.min() + 2 * move + 1e-3)[0]
+            s0 = s0.reshape(-1)
             if s0.min() >= 0:
                 feasible.append((x0, float(s0.min())))
                 if it > 0 and o.method != "max_min_distance" and s0.min() >= min(cap, predicted) - 0.002:
                     break                                  # the LP's step, confirmed by the field
             if it == iterations:
                 break
-            jac = ((slack[1:] - s0) / eps[:, None]).T                                          # (m, k)
+            # forward differences: the field is trilinear, its cell gradient is what a step sees
+            moved = self._slack(self._candidates(state, x0 + np.diag(eps), step, frame), self.points[near])
+            base = s0.reshape(-1, 4)[near].reshape(-1)
+            jac = ((moved.reshape(k, -1) - base) / eps[:, None]).T                              # (a, k)
             # near-critical constraints: those a move within the trust region can bring down to the minimum
             reach = np.abs(jac) @ (2.0 * rho)
-            active = np.nonzero(s0 - reach <= s0.min() + 1e-3)[0]
+            active = np.nonzero(base - reach <= s0.min() + 1e-3)[0]
             if len(active) > 800:
-                active = active[np.argsort(s0[active] - reach[active])[:800]]
-            step_lp = self._lp_step(s0[active], jac[active], x0, prev_incr, rho, cap, cost_f1, o.method)
+                active = active[np.argsort(base[active] - reach[active])[:800]]
+            step_lp = self._lp_step(base[active], jac[active], x0, prev_incr, rho, cap, cost_f1, o.method)
             x, predicted = step_lp if step_lp is not None else (None, -np.inf)
             if x is None or np.allclose(x, x0, rtol=0, atol=1e-7):
                 break
