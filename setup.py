@@ -13,6 +13,7 @@ NODES = {
     "geometry_loader": "edm_planner.nodes.geometry_loader:main",
     "interference_checker": "edm_planner.nodes.interference_checker:main",
     "trajectory_planner": "edm_planner.nodes.trajectory_planner:main",
+    "axis_bridge": "edm_planner.nodes.axis_bridge:main",
 }
 
 # Command-line tools (bin/ only, not ROS nodes).

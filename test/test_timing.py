@@ -80,6 +80,23 @@ def test_machine_errors(tmp_path, old, new, code, words):
     assert str(path) in err.value.message
 
 
+def test_parse_machine_structure_errors():
+    import yaml
+
+    doc = yaml.safe_load(MACHINE_YAML)
+    for bad, words in ((["not", "a", "mapping"], "expected a mapping"),
+                       ({**doc, "spindle": {}}, "unknown top-level keys ['spindle']"),
+                       ({**doc, "axes": {k: v for k, v in doc["axes"].items() if k != "Y"}}, "Y missing"),
+                       ({**doc, "axes": {**doc["axes"], "U": doc["axes"]["X"]}}, "axes.U: unknown axis"),
+                       ({**doc, "machine": {**doc["machine"], "c_pivot_mm": [0, 0]}}, "c_pivot_mm: expected 3")):
+        with pytest.raises(EdmError) as err:
+            parse_machine(bad, "inline")
+        assert err.value.code == ErrorCode.INVALID_REQUEST and words in err.value.message
+    # a 4-axis machine (no A) is a valid configuration
+    four = parse_machine({**doc, "axes": {k: v for k, v in doc["axes"].items() if k != "A"}})
+    assert four.joint_names(("X", "Y", "Z", "C")) == ["edm_x", "edm_y", "edm_z", "edm_c"]
+
+
 def test_missing_machine_file_and_unconfigured_axis(tmp_path, machine):
     with pytest.raises(EdmError) as err:
         load_machine(tmp_path / "nope.yaml")
@@ -115,9 +132,11 @@ def check_trajectory(t, samples, v_lim, a_lim):
     span = (tt[2:] - tt[:-2])[:, None]
     # central differences of positions: error bounded by a_max * dt (piecewise-constant path acceleration)
     assert np.all(np.abs((p[2:] - p[:-2]) / span - v[1:-1]) <= 0.5 * a_lim * span)
-    # central differences of velocities: within 15 % of the limit where toppra switches, tiny elsewhere
+    # central differences of velocities: tiny except where toppra switches the path acceleration; there the
+    # point carries the mean of both sides and the difference weighs them by their durations (< a_max / 2
+    # unless neighbouring steps differ a lot in length)
     err = np.abs((v[2:] - v[:-2]) / span - a[1:-1]) / a_lim
-    assert np.all(err < 0.15) and np.all(np.median(err, axis=0) < 1e-3)
+    assert np.all(err < 0.5) and np.all(np.median(err, axis=0) < 1e-3)
     return err
 
 

@@ -1,0 +1,222 @@
+"""axis_bridge node: times certified plans and sends them to the EDM controller.
+
+Subscribes to the trajectory_planner's latched ``plan`` topic
+(edm_planner_msgs/ChannelPlan) and keeps the plans it has seen by id. The
+``execute_plan`` service (edm_planner_msgs/ExecutePlan) times a plan on the
+configured machine (toppra, ``edm_planner.machine.timing``) and, unless
+``dry_run``, publishes it as ``trajectory_msgs/JointTrajectory``.
+
+Error codes: UNKNOWN_ID (plan never seen), INVALID_REQUEST (channel does not
+match the plan, plan axes not configured), INFEASIBLE (travel or
+velocity/acceleration limit violated, named with axis and time; or the machine's
+``/joint_states`` is further from the plan's start than the tolerance).
+Nothing that violates a limit is ever published.
+
+Units: the trajectory is in the machine config's units, millimetres and
+radians (mm/s, mm/s^2 ...), like every message of this project; joint values
+are ``direction * planner axis + offset`` per ``config/machine.yaml``.
+
+Parameters
+----------
+machine_file : str
+    Machine YAML ('' : share/edm_planner/config/machine.yaml).
+trajectory_topic : str
+    Where JointTrajectory goes (default /edm_controller/joint_trajectory).
+joint_states_topic : str
+    sensor_msgs/JointState of the machine (default /joint_states); '' : no start-state check.
+start_tolerance_linear : float
+    Largest start-state error of a linear joint [mm].
+start_tolerance_rotary : float
+    Largest start-state error of a rotary joint [rad].
+joint_state_max_age : float
+    A JointState older than this is not used for the start check [s].
+max_plans : int
+    Plans kept (oldest dropped first).
+"""
+
+import math
+import os
+import threading
+import time
+from collections import OrderedDict
+
+import numpy as np
+from builtin_interfaces.msg import Duration
+from edm_planner_msgs.msg import ChannelPlan
+from edm_planner_msgs.srv import ExecutePlan
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from ..errors import EdmError, ErrorCode
+from ..machine.config import LINEAR, default_machine_path, load_machine
+from ..machine.trajectory import plan_trajectory
+from .conversions import error_code
+from .geometry_loader import LATCHED
+from .runtime import spin_node
+
+
+def duration_msg(seconds):
+    """Seconds -> builtin_interfaces/Duration (nanosecond rounding carried into sec)."""
+    sec = int(math.floor(seconds))
+    nanosec = int(round((seconds - sec) * 1e9))
+    if nanosec >= 1_000_000_000:
+        sec, nanosec = sec + 1, nanosec - 1_000_000_000
+    return Duration(sec=sec, nanosec=nanosec)
+
+
+def joint_trajectory_msg(arrays, frame_id=""):
+    """JointTrajectoryArrays -> trajectory_msgs/JointTrajectory (positions, velocities, accelerations every point).
+
+    Header stamp zero: the controller starts it on receipt (joint_trajectory_controller convention).
+    """
+    msg = JointTrajectory()
+    msg.header.frame_id = frame_id
+    msg.joint_names = list(arrays.joint_names)
+    stamps = [duration_msg(t) for t in arrays.times]
+    ns = [d.sec * 1_000_000_000 + d.nanosec for d in stamps]
+    if any(b <= a for a, b in zip(ns, ns[1:])):
+        raise EdmError(ErrorCode.INTERNAL, "time_from_start not strictly increasing at nanosecond resolution")
+    msg.points = [JointTrajectoryPoint(positions=p, velocities=v, accelerations=a, time_from_start=d)
+                  for p, v, a, d in zip(arrays.positions.tolist(), arrays.velocities.tolist(),
+                                        arrays.accelerations.tolist(), stamps)]
+    return msg
+
+
+class _StoredPlan:
+    __slots__ = ("plan_id", "channel", "geometry_id", "axis_names", "samples")
+
+    def __init__(self, msg):
+        self.plan_id = msg.plan_id
+        self.channel = int(msg.channel)
+        self.geometry_id = msg.geometry_id
+        self.axis_names = tuple(msg.axis_path.axis_names)
+        self.samples = np.array([p.positions for p in msg.axis_path.points], dtype=np.float64).reshape(
+            -1, len(self.axis_names))
+
+
+class AxisBridgeNode(Node):
+    """Serves ExecutePlan for every plan seen on ``plan``."""
+
+    def __init__(self, **kwargs):
+        super().__init__("axis_bridge", **kwargs)
+        self.declare_parameter("machine_file", "")
+        self.declare_parameter("trajectory_topic", "/edm_controller/joint_trajectory")
+        self.declare_parameter("joint_states_topic", "/joint_states")
+        self.declare_parameter("start_tolerance_linear", 0.05)
+        self.declare_parameter("start_tolerance_rotary", 0.001)
+        self.declare_parameter("joint_state_max_age", 5.0)
+        self.declare_parameter("max_plans", 50)
+        path = self.get_parameter("machine_file").value or _default_machine_file()
+        self.machine = load_machine(path)   # a bad machine file stops the node at start, with the key named
+        self.get_logger().info(f"machine {self.machine.name!r} from {path}: joints "
+                               f"{[a.joint for a in self.machine.axes.values()]}")
+        self.plans = OrderedDict()
+        self._joint_state = None            # (monotonic receipt time, {name: position})
+        self._lock = threading.Lock()
+        self.create_subscription(ChannelPlan, "plan", self.on_plan, LATCHED,
+                                 callback_group=MutuallyExclusiveCallbackGroup())
+        topic = self.get_parameter("joint_states_topic").value
+        if topic:
+            self.create_subscription(JointState, topic, self.on_joint_state, 10,
+                                     callback_group=MutuallyExclusiveCallbackGroup())
+        self.trajectory_pub = self.create_publisher(JointTrajectory,
+                                                    self.get_parameter("trajectory_topic").value, 10)
+        self.service = self.create_service(ExecutePlan, "execute_plan", self.on_execute,
+                                           callback_group=MutuallyExclusiveCallbackGroup())
+
+    def on_plan(self, msg):
+        plan = _StoredPlan(msg)
+        with self._lock:
+            self.plans[plan.plan_id] = plan
+            self.plans.move_to_end(plan.plan_id)
+            while len(self.plans) > int(self.get_parameter("max_plans").value):
+                self.plans.popitem(last=False)
+        self.get_logger().info(f"plan {plan.plan_id}: channel {plan.channel}, {len(plan.samples)} samples")
+
+    def on_joint_state(self, msg):
+        with self._lock:
+            self._joint_state = (time.monotonic(), dict(zip(msg.name, msg.position)))
+
+    def on_execute(self, request, response):
+        try:
+            self._execute(request, response)
+        except EdmError as exc:
+            response.success = False
+            response.error_code = error_code(exc.code)
+            response.message = exc.message
+            self.get_logger().warning(f"ExecutePlan refused ({exc.code.name}): {exc.message}")
+        except Exception as exc:
+            self.get_logger().error(f"ExecutePlan internal error: {exc!r}")
+            response.success = False
+            response.error_code = error_code(ErrorCode.INTERNAL)
+            response.message = f"internal error: {exc!r}"
+        return response
+
+    def _execute(self, request, response):
+        with self._lock:
+            plan = self.plans.get(request.plan_id)
+        if plan is None:
+            raise EdmError(ErrorCode.UNKNOWN_ID, f"unknown plan id {request.plan_id!r}; plans seen on 'plan': "
+                                                 f"{list(self.plans)[-5:]}")
+        if int(request.channel) != plan.channel:
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"plan {plan.plan_id} is for channel {plan.channel}, "
+                                                      f"the request names channel {request.channel}")
+        arrays = plan_trajectory(plan.samples, plan.axis_names, self.machine)
+        self._check_start_state(arrays)
+        timed = arrays.timed
+        response.duration = float(arrays.duration)
+        response.point_count = len(arrays.times)
+        response.axis_names = list(plan.axis_names)
+        response.peak_velocity = [float(v) for v in timed.peak_velocity]
+        response.peak_acceleration = [float(v) for v in timed.peak_acceleration]
+        summary = (f"plan {plan.plan_id} channel {plan.channel}: {response.point_count} points, "
+                   f"{response.duration:.3f} s (time stretch {timed.time_scale:.4f} after limit check), "
+                   f"deviation from the certified chords <= {timed.deviation_between_samples[:3].max() * 1e3:.3f} um "
+                   f"/ {timed.deviation_between_samples[3:].max() if len(plan.axis_names) > 3 else 0.0:.2e} rad")
+        if not request.dry_run:
+            self.trajectory_pub.publish(joint_trajectory_msg(arrays))
+            summary += f"; sent on {self.trajectory_pub.topic_name} as joints {arrays.joint_names}"
+        else:
+            summary += "; dry run, nothing sent"
+        response.success = True
+        response.error_code = error_code(ErrorCode.SUCCESS)
+        response.message = summary
+        self.get_logger().info(summary)
+
+    def _check_start_state(self, arrays):
+        with self._lock:
+            state = self._joint_state
+        if state is None or time.monotonic() - state[0] > float(self.get_parameter("joint_state_max_age").value):
+            return                          # no live joint states: nothing to check against
+        received, positions = state
+        for j, (joint, axis) in enumerate(zip(arrays.joint_names, arrays.axis_names)):
+            if joint not in positions:
+                raise EdmError(ErrorCode.INVALID_REQUEST, f"joint {joint} (axis {axis}) is not in the machine's "
+                                                          f"joint states {sorted(positions)}")
+            linear = axis in LINEAR
+            tol = float(self.get_parameter("start_tolerance_linear" if linear else "start_tolerance_rotary").value)
+            error = abs(positions[joint] - arrays.positions[0, j])
+            if not error <= tol:
+                unit = "mm" if linear else "rad"
+                raise EdmError(ErrorCode.INFEASIBLE,
+                               f"start state: joint {joint} (axis {axis}) is at {positions[joint]:.6g} {unit}, the "
+                               f"plan starts at {arrays.positions[0, j]:.6g} {unit} (tolerance {tol:g} {unit}); "
+                               f"move the machine to the plan's start first")
+
+
+def _default_machine_file():
+    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+    try:
+        path = os.path.join(get_package_share_directory("edm_planner"), "config", "machine.yaml")
+        if os.path.exists(path):
+            return path
+    except PackageNotFoundError:  # not installed in an ament prefix: the source tree's config
+        pass
+    return str(default_machine_path())
+
+
+def main(args=None):
+    """Console entry point ``axis_bridge``."""
+    return spin_node(AxisBridgeNode, args)

@@ -1,0 +1,207 @@
+"""axis_bridge over real DDS: a real plan from a real trajectory_planner, timed and sent as JointTrajectory."""
+
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+from edm_planner_msgs.msg import BliskGeometry, ChannelPlan, ErrorCode
+from edm_planner_msgs.srv import ExecutePlan, PlanChannel
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+
+from edm_planner.machine.config import default_machine_path, load_machine
+from edm_planner.nodes.axis_bridge import AxisBridgeNode
+from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode
+from edm_planner.nodes.trajectory_planner import TrajectoryPlannerNode
+
+from test_trajectory_planner_node import rear_design
+
+PITCH = 2 * np.pi / 60
+TOPIC = "/edm_controller/joint_trajectory"
+JOINTS = ["edm_x", "edm_y", "edm_z", "edm_a", "edm_c"]
+
+
+class Inbox:
+    """Messages of one topic, with waiting."""
+
+    def __init__(self):
+        self.items, self.cond = [], threading.Condition()
+
+    def __call__(self, msg):
+        with self.cond:
+            self.items.append(msg)
+            self.cond.notify_all()
+
+    def wait(self, count, timeout):
+        with self.cond:
+            return self.cond.wait_for(lambda: len(self.items) >= count, timeout)
+
+
+@pytest.fixture(scope="module")
+def system(tmp_path_factory, field_cache):
+    from ros_harness import InProcessRos
+
+    ros = InProcessRos()
+    machine_text = default_machine_path().read_text()
+    tight = tmp_path_factory.mktemp("machine") / "tight.yaml"
+    tight.write_text(machine_text.replace("min_mm: -250.0\n    max_mm: 250.0", "min_mm: -250.0\n    max_mm: 15.0"))
+    ros.add(GeometryLoaderNode(context=ros.context))
+    ros.add(TrajectoryPlannerNode(context=ros.context, parameter_overrides=[Parameter("cache_dir", value=field_cache)]))
+    ros.add(AxisBridgeNode(context=ros.context, parameter_overrides=[
+        Parameter("joint_states_topic", value="/test_joint_states")]))
+    # the same bridge on a machine whose X travel ends at 15 mm, serving under another name
+    ros.add(AxisBridgeNode(context=ros.context, cli_args=["--ros-args", "-r", "execute_plan:=tight/execute_plan",
+                                                          "-r", "__node:=axis_bridge_tight"],
+                           parameter_overrides=[Parameter("machine_file", value=str(tight)),
+                                                Parameter("trajectory_topic", value="/tight/joint_trajectory")]))
+    client = ros.add(Node("bridge_client", context=ros.context))
+    trajectories, tight_trajectories, plans = Inbox(), Inbox(), Inbox()
+    geometry = threading.Event()
+    client.create_subscription(BliskGeometry, "geometry", lambda m: geometry.set(), LATCHED)
+    client.create_subscription(JointTrajectory, TOPIC, trajectories, 10)
+    client.create_subscription(JointTrajectory, "/tight/joint_trajectory", tight_trajectories, 10)
+    client.create_subscription(ChannelPlan, "plan", plans, LATCHED)
+    joint_states = client.create_publisher(JointState, "/test_joint_states", 10)
+    assert geometry.wait(60)
+    res = ros.call(client, PlanChannel, "plan_channel",
+                   PlanChannel.Request(channel=3, electrode_id="rear", electrode=rear_design()), timeout=300)
+    assert res.success, res.message
+    assert plans.wait(1, 10)
+    samples = np.array([p.positions for p in res.axis_path.points])
+    yield dict(ros=ros, client=client, plan=res, samples=samples, trajectories=trajectories,
+               tight_trajectories=tight_trajectories, joint_states=joint_states)
+    ros.close()
+
+
+def execute(system, service="execute_plan", **fields):
+    req = ExecutePlan.Request(plan_id=fields.pop("plan_id", system["plan"].plan_id), channel=fields.pop("channel", 3),
+                              **fields)
+    deadline = time.monotonic() + 10
+    while True:   # the bridge may not have taken the latched plan yet
+        res = system["ros"].call(system["client"], ExecutePlan, service, req, timeout=60)
+        if res.error_code.val != ErrorCode.UNKNOWN_ID or req.plan_id != system["plan"].plan_id \
+                or time.monotonic() > deadline:
+            return res
+        time.sleep(0.2)
+
+
+def seconds(d):
+    return d.sec + d.nanosec * 1e-9
+
+
+def test_dry_run_times_and_sends_nothing(system):
+    m = load_machine(default_machine_path())
+    res = execute(system, dry_run=True)
+    assert res.success, res.message
+    assert res.error_code.val == ErrorCode.SUCCESS and "dry run" in res.message
+    assert res.point_count == len(system["samples"]) > 1000
+    assert list(res.axis_names) == ["X", "Y", "Z", "A", "C"]
+    lim = m.limits_for(res.axis_names)
+    v = np.array(res.peak_velocity) / [a.velocity_max for a in lim]
+    a = np.array(res.peak_acceleration) / [a.acceleration_max for a in lim]
+    assert np.all(v <= 1 + 1e-6) and np.all(a <= 1 + 1e-6) and max(v.max(), a.max()) > 0.98
+    assert 2.0 < res.duration < 60.0
+    time.sleep(1.0)
+    assert not system["trajectories"].items
+
+
+def test_execute_publishes_the_joint_trajectory(system):
+    inbox = system["trajectories"]
+    res = execute(system)
+    assert res.success, res.message
+    assert inbox.wait(1, 10), "no JointTrajectory received"
+    msg = inbox.items[-1]
+    m = load_machine(default_machine_path())
+    lim = m.limits_for(("X", "Y", "Z", "A", "C"))
+    assert list(msg.joint_names) == JOINTS
+    assert len(msg.points) == res.point_count == len(system["samples"])
+    t = np.array([seconds(p.time_from_start) for p in msg.points])
+    p = np.array([pt.positions for pt in msg.points])
+    v = np.array([pt.velocities for pt in msg.points])
+    a = np.array([pt.accelerations for pt in msg.points])
+    assert p.shape == v.shape == a.shape == (len(t), 5)
+    assert t[0] == 0.0 and np.all(np.diff(t) > 0) and t[-1] == pytest.approx(res.duration, abs=1e-9)
+    # the certified samples, start pose first, machining pose of channel 3 last, at rest at both ends
+    np.testing.assert_allclose(p, system["samples"], atol=1e-9)
+    np.testing.assert_allclose(p[-1], [0, 0, 0, 3 * PITCH, 0], atol=1e-9)
+    assert p[0, 0] > 10.0
+    np.testing.assert_array_equal(v[[0, -1]], 0.0)
+    vmax = np.array([x.velocity_max for x in lim])
+    amax = np.array([x.acceleration_max for x in lim])
+    assert np.all(np.abs(v) <= vmax * (1 + 1e-6)) and np.all(np.abs(a) <= amax * (1 + 1e-6))
+    np.testing.assert_allclose(np.abs(v).max(axis=0), res.peak_velocity, rtol=1e-3, atol=1e-9)
+    # consistent with finite differences of the positions (see test_timing for the bounds)
+    span = (t[2:] - t[:-2])[:, None]
+    assert np.all(np.abs((p[2:] - p[:-2]) / span - v[1:-1]) <= 0.5 * amax * span)
+    err = np.abs((v[2:] - v[:-2]) / span - a[1:-1]) / amax
+    assert np.all(err < 0.5) and np.all(np.median(err, axis=0) < 1e-3)
+
+
+def test_bad_requests(system):
+    res = execute(system, plan_id="no-such-plan", dry_run=True)
+    assert not res.success and res.error_code.val == ErrorCode.UNKNOWN_ID and "no-such-plan" in res.message
+    res = execute(system, channel=4, dry_run=True)
+    assert not res.success and res.error_code.val == ErrorCode.INVALID_REQUEST
+    assert "channel 3" in res.message and "channel 4" in res.message
+
+
+def test_travel_violation_is_rejected_and_nothing_sent(system):
+    res = execute(system, service="tight/execute_plan")
+    assert not res.success and res.error_code.val == ErrorCode.INFEASIBLE
+    assert "axis X (joint edm_x)" in res.message and "[-250, 15] mm" in res.message
+    # the plan starts at X > 15 mm outside the blisk: rejected at its first point
+    assert "t = 0.000 s" in res.message
+    time.sleep(1.0)
+    assert not system["tight_trajectories"].items
+
+
+def test_start_state_checked_against_joint_states(system):
+    pub, start = system["joint_states"], system["samples"][0]
+    count = len(system["trajectories"].items)
+
+    def send(positions):
+        pub.publish(JointState(name=JOINTS, position=[float(x) for x in positions]))
+        time.sleep(0.5)
+
+    far = start.copy()
+    far[2] += 1.0                                   # Z one millimetre off
+    send(far)
+    res = execute(system)
+    assert not res.success and res.error_code.val == ErrorCode.INFEASIBLE
+    assert "start state: joint edm_z (axis Z)" in res.message and "tolerance 0.05 mm" in res.message
+    assert len(system["trajectories"].items) == count
+    near = start.copy()
+    near[3] += 0.0005                               # A within 0.001 rad
+    send(near)
+    res = execute(system)
+    assert res.success, res.message
+    assert system["trajectories"].wait(count + 1, 10)
+    send([0.0] * 4)                                  # edm_c missing
+    pub.publish(JointState(name=JOINTS[:4], position=[float(x) for x in start[:4]]))
+    time.sleep(0.5)
+    res = execute(system, dry_run=True)
+    assert not res.success and res.error_code.val == ErrorCode.INVALID_REQUEST and "edm_c" in res.message
+    assert not math.isnan(res.duration)
+
+
+def test_console_entry_point(ros, node_processes, tmp_path):
+    """``axis_bridge`` as its own process answers over DDS; a bad machine file stops it naming the key."""
+    import os
+    import sys
+
+    assert os.access(os.path.join(sys.prefix, "lib", "edm_planner", "axis_bridge"), os.X_OK)
+    node_processes.start("axis_bridge", "--ros-args", "-r", "execute_plan:=proc/execute_plan")
+    client = ros.add(Node("process_client", context=ros.context))
+    res = ros.call(client, ExecutePlan, "proc/execute_plan", ExecutePlan.Request(plan_id="nothing", dry_run=True),
+                   timeout=60)
+    assert res.error_code.val == ErrorCode.UNKNOWN_ID, node_processes.log("axis_bridge")
+    assert node_processes.stop()["axis_bridge"] in (0, -2), node_processes.log("axis_bridge")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(default_machine_path().read_text().replace("velocity_max_rad_s: 0.5", "velocity_max_rad_s: -1", 1))
+    proc = node_processes.start("axis_bridge", params={"machine_file": str(bad)})
+    assert proc.wait(timeout=60) != 0
+    assert "axes.A.velocity_max_rad_s: must be positive" in node_processes.log("axis_bridge")
