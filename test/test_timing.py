@@ -255,3 +255,48 @@ def test_real_plan_timed_on_the_default_machine(real_plan, machine):
     # measured deviation between samples from the certified chords: sub-micrometre / sub-microradian
     assert np.all(t.deviation_between_samples[:3] < 1e-3) and np.all(t.deviation_between_samples[3:] < 1e-5)
     assert 2.0 < j.duration < 60.0
+
+
+# -- NC program and CSV ----------------------------------------------------------------------------
+def test_nc_export_parses_back_to_the_same_timed_path(real_plan, machine):
+    from edm_planner.machine.nc import parse_nc, nc_program, trajectory_csv
+
+    plan = real_plan
+    j = plan_trajectory(plan.samples, plan.axis_names, machine)
+    text = nc_program(j, plan.plan_id, plan.geometry_id, plan.channel, plan.electrode_id)
+    lines = text.splitlines()
+    assert lines[0] == "%" and lines[-1] == "%" and "G21 G90 G93" in lines
+    assert f"(EDM_PLANNER PLAN {plan.plan_id})" in lines and f"(GEOMETRY {plan.geometry_id})" in lines
+    assert "(UNITS X=MM Y=MM Z=MM A=DEG C=DEG F=INVERSE TIME 1/MIN)" in lines
+    assert sum(line.split()[1] == "G01" for line in lines if line.startswith("N")) == len(j.times) - 1
+    back = parse_nc(text)
+    assert back["plan_id"] == plan.plan_id and back["geometry_id"] == plan.geometry_id
+    assert back["axis_names"] == ("X", "Y", "Z", "A", "C")
+    # the same path to the written precision (0.1 um, 1e-5 deg), the same timing to F's 7 digits
+    err = np.abs(back["positions"] - j.positions)
+    assert np.all(err[:, :3] <= 0.5e-4 + 1e-12) and np.all(err[:, 3:] <= np.radians(0.5e-5) + 1e-15)
+    np.testing.assert_allclose(back["positions"][-1], [0, 0, 0, 3 * 2 * np.pi / 60, 0], atol=1e-7)
+    np.testing.assert_allclose(back["times"], j.times, rtol=1e-6, atol=1e-6)
+    # CSV: header with units, one row per point
+    csv = trajectory_csv(j).splitlines()
+    assert csv[0].startswith("t_s,X_mm,X_vel_mm_s,X_acc_mm_s2,Y_mm") and "A_rad,A_vel_rad_s,A_acc_rad_s2" in csv[0]
+    table = np.array([[float(v) for v in row.split(",")] for row in csv[1:]])
+    np.testing.assert_array_equal(table[:, 0], j.times)
+    np.testing.assert_array_equal(table[:, 1::3], j.positions)
+    np.testing.assert_array_equal(table[:, 2::3], j.velocities)
+
+
+def test_nc_parser_rejects_what_it_does_not_write():
+    from edm_planner.machine.nc import parse_nc
+
+    for text, words in (("G21 G90 G93\nN10 G00 X1 Y2\nN20 G01 X2 Y2\n", "needs G93 and a positive F"),
+                        ("G21 G90\nN10 G00 X1 Y2\nN20 G01 X2 Y2 F10\n", "needs G93"),
+                        ("G21 G90 G93\nN10 G00 X1 Y2\nN20 G02 X2 Y2 F10\n", "unsupported codes"),
+                        ("G21 G90 G93\nN10 G00 X1 Y2\nN20 G01 X2 Z2 F10\n", "differ from"),
+                        ("(EDM_PLANNER PLAN x)\n%\n", "no motion blocks")):
+        with pytest.raises(EdmError) as err:
+            parse_nc(text)
+        assert err.value.code == ErrorCode.FILE_ERROR and words in err.value.message
+    back = parse_nc("G21 G90 G93\nN10 G00 X1 A90\nN20 G01 X2 A45 F120\nN30 G01 X3 A0 F60\nM30\n")
+    np.testing.assert_allclose(back["positions"], [[1, np.pi / 2], [2, np.pi / 4], [3, 0]])
+    np.testing.assert_allclose(back["times"], [0, 0.5, 1.5])
