@@ -7,10 +7,13 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export AMENT_PREFIX_PATH := $(CURDIR)/$(VENV)
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: setup test bench clean
+.PHONY: setup demo test bench clean
 
 setup:
 	@bash tools/setup.sh
+
+demo: setup
+	$(PY) -m edm_planner.demo --out out/demo
 
 test: setup
 	$(PY) -m pytest -q test
