@@ -13,8 +13,11 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
+from edm_planner.geometry.frames import rotation_about_x
 from edm_planner.machine.config import default_machine_path, load_machine
+from edm_planner.machine.kinematics import FiveAxisKinematics
 from edm_planner.nodes.axis_bridge import AxisBridgeNode
+from edm_planner.nodes.conversions import pose_to_matrix
 from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode
 from edm_planner.nodes.trajectory_planner import TrajectoryPlannerNode
 
@@ -58,12 +61,21 @@ def system(tmp_path_factory, field_cache):
                                                           "-r", "__node:=axis_bridge_tight"],
                            parameter_overrides=[Parameter("machine_file", value=str(tight)),
                                                 Parameter("trajectory_topic", value="/tight/joint_trajectory")]))
+    # and on a machine with channel 0 at A = 0.5 rad and the C axis 4.5 mm off the electrode origin
+    pivot = tmp_path_factory.mktemp("machine") / "pivot.yaml"
+    pivot.write_text(machine_text.replace("a_zero_rad: 0.0", "a_zero_rad: 0.5").replace(
+        "c_pivot_mm: [0.0, 0.0, 0.0]", "c_pivot_mm: [4.0, -2.0, 30.0]"))
+    ros.add(AxisBridgeNode(context=ros.context, cli_args=["--ros-args", "-r", "execute_plan:=pivot/execute_plan",
+                                                          "-r", "__node:=axis_bridge_pivot"],
+                           parameter_overrides=[Parameter("machine_file", value=str(pivot)),
+                                                Parameter("trajectory_topic", value="/pivot/joint_trajectory")]))
     client = ros.add(Node("bridge_client", context=ros.context))
-    trajectories, tight_trajectories, plans = Inbox(), Inbox(), Inbox()
+    trajectories, tight_trajectories, pivot_trajectories, plans = Inbox(), Inbox(), Inbox(), Inbox()
     geometry = threading.Event()
     client.create_subscription(BliskGeometry, "geometry", lambda m: geometry.set(), LATCHED)
     client.create_subscription(JointTrajectory, TOPIC, trajectories, 10)
     client.create_subscription(JointTrajectory, "/tight/joint_trajectory", tight_trajectories, 10)
+    client.create_subscription(JointTrajectory, "/pivot/joint_trajectory", pivot_trajectories, 10)
     client.create_subscription(ChannelPlan, "plan", plans, LATCHED)
     joint_states = client.create_publisher(JointState, "/test_joint_states", 10)
     assert geometry.wait(60)
@@ -73,7 +85,8 @@ def system(tmp_path_factory, field_cache):
     assert plans.wait(1, 10)
     samples = np.array([p.positions for p in res.axis_path.points])
     yield dict(ros=ros, client=client, plan=res, samples=samples, trajectories=trajectories,
-               tight_trajectories=tight_trajectories, joint_states=joint_states)
+               tight_trajectories=tight_trajectories, pivot_trajectories=pivot_trajectories,
+               joint_states=joint_states)
     ros.close()
 
 
@@ -157,6 +170,22 @@ def test_travel_violation_is_rejected_and_nothing_sent(system):
     assert "t = 0.000 s" in res.message
     time.sleep(1.0)
     assert not system["tight_trajectories"].items
+
+
+def test_machine_a_zero_and_c_pivot_keep_the_published_poses(system):
+    res = execute(system, service="pivot/execute_plan")
+    assert res.success, res.message
+    assert system["pivot_trajectories"].wait(1, 10)
+    msg = system["pivot_trajectories"].items[-1]
+    q = np.array([pt.positions for pt in msg.points])
+    plan = system["plan"]
+    poses = np.array([pose_to_matrix(p) for p in plan.poses.poses])
+    final0 = pose_to_matrix(plan.poses.poses[-1])
+    kin = FiveAxisKinematics(rotation_about_x(-3 * PITCH) @ final0, PITCH, c_pivot=(4.0, -2.0, 30.0), a_zero=0.5)
+    # the sent joints reach the planner's published electrode poses (to the poses' message precision)
+    np.testing.assert_allclose(kin.forward(q), poses, atol=1e-6)
+    assert abs(q[-1, 3] - (0.5 + 3 * PITCH)) < 1e-9
+    assert np.abs(q[:, :3] - system["samples"][:, :3]).max() > 2.0
 
 
 def test_start_state_checked_against_joint_states(system):

@@ -300,3 +300,23 @@ def test_nc_parser_rejects_what_it_does_not_write():
     back = parse_nc("G21 G90 G93\nN10 G00 X1 A90\nN20 G01 X2 A45 F120\nN30 G01 X3 A0 F60\nM30\n")
     np.testing.assert_allclose(back["positions"], [[1, np.pi / 2], [2, np.pi / 4], [3, 0]])
     np.testing.assert_allclose(back["times"], [0, 0.5, 1.5])
+
+
+def test_machine_a_zero_and_c_pivot_keep_the_certified_poses(real_plan, machine):
+    """A machine whose C axis is 4.5 mm off the electrode origin and whose channel 0 is at A = 0.5 rad."""
+    from edm_planner.machine.kinematics import FiveAxisKinematics
+
+    plan = real_plan
+    pivoted = replace(machine, a_zero=0.5, c_pivot=(4.0, -2.0, 30.0))
+    with pytest.raises(EdmError) as err:
+        plan_trajectory(plan.samples, plan.axis_names, pivoted)
+    assert err.value.code == ErrorCode.INVALID_REQUEST and "final pose" in err.value.message
+    j = plan_trajectory(plan.samples, plan.axis_names, pivoted, final_pose=plan.final_pose)
+    assert j.kinematic_residual < 1e-9
+    # independent check: the machine's forward kinematics (Huang eq. 2) at the sent joints = the plan's poses
+    kin = FiveAxisKinematics(plan.final_pose, 2 * np.pi / 60, c_pivot=(4.0, -2.0, 30.0), a_zero=0.5)
+    np.testing.assert_allclose(kin.forward(j.positions), plan.poses[j.timed.sample_index], atol=1e-9)
+    np.testing.assert_allclose(j.positions[-1, 3], 0.5 + 3 * 2 * np.pi / 60, atol=1e-12)
+    # the pivot moves X, Y, Z as C turns: a different (still limited) motion, not a copy
+    assert np.abs(j.positions[:, :3] - plan.samples[:, :3]).max() > 2.0
+    check_trajectory(j.timed, j.positions, vmax(machine), amax(machine))

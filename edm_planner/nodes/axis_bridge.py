@@ -50,6 +50,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from ..errors import EdmError, ErrorCode
+from ..geometry.frames import rotation_about_x
 from ..machine.config import LINEAR, default_machine_path, load_machine
 from ..machine.trajectory import plan_trajectory
 from .conversions import error_code
@@ -85,7 +86,7 @@ def joint_trajectory_msg(arrays, frame_id=""):
 
 
 class _StoredPlan:
-    __slots__ = ("plan_id", "channel", "geometry_id", "axis_names", "samples")
+    __slots__ = ("plan_id", "channel", "geometry_id", "axis_names", "samples", "final_pose")
 
     def __init__(self, msg):
         self.plan_id = msg.plan_id
@@ -94,6 +95,12 @@ class _StoredPlan:
         self.axis_names = tuple(msg.axis_path.axis_names)
         self.samples = np.array([p.positions for p in msg.axis_path.points], dtype=np.float64).reshape(
             -1, len(self.axis_names))
+        # the message's final pose is in the plan's channel; the kinematics want channel 0's,
+        # which A's last value (channel * pitch in the planner's convention) turns back to
+        final = np.array(msg.final_pose, dtype=np.float64).reshape(4, 4)
+        if "A" in self.axis_names and len(self.samples):
+            final = rotation_about_x(-self.samples[-1, self.axis_names.index("A")]) @ final
+        self.final_pose = final
 
 
 class AxisBridgeNode(Node):
@@ -163,7 +170,7 @@ class AxisBridgeNode(Node):
         if int(request.channel) != plan.channel:
             raise EdmError(ErrorCode.INVALID_REQUEST, f"plan {plan.plan_id} is for channel {plan.channel}, "
                                                       f"the request names channel {request.channel}")
-        arrays = plan_trajectory(plan.samples, plan.axis_names, self.machine)
+        arrays = plan_trajectory(plan.samples, plan.axis_names, self.machine, final_pose=plan.final_pose)
         self._check_start_state(arrays)
         timed = arrays.timed
         response.duration = float(arrays.duration)
