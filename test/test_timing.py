@@ -20,6 +20,15 @@ def machine():
     return load_machine(default_machine_path())
 
 
+def no_jerk(machine):
+    """The machine without jerk limits (toppra's time-optimal law unstretched)."""
+    return replace(machine, axes={k: replace(a, jerk_max=math.inf) for k, a in machine.axes.items()})
+
+
+def jmax(machine, names=AXES):
+    return np.array([lim.jerk_max for lim in machine.limits_for(names)])
+
+
 def vmax(machine, names=AXES):
     return np.array([lim.velocity_max for lim in machine.limits_for(names)])
 
@@ -45,7 +54,7 @@ def test_default_machine(machine):
     assert machine.joint_names(AXES) == ["edm_x", "edm_y", "edm_z", "edm_a", "edm_c"]
     x, a = machine.axes["X"], machine.axes["A"]
     assert (x.position_min, x.position_max, x.velocity_max, x.acceleration_max, x.jerk_max) == (
-        -250.0, 250.0, 10.0, 20.0, 200.0)
+        -250.0, 250.0, 10.0, 20.0, 5000.0)
     assert (a.unit, a.velocity_max, a.acceleration_max) == ("rad", 0.5, 1.0)
     assert machine.a_zero == 0.0 and machine.c_pivot == (0.0, 0.0, 0.0)
     # every channel of a 60-blade blisk is inside A's travel
@@ -53,18 +62,18 @@ def test_default_machine(machine):
 
 
 @pytest.mark.parametrize("old, new, code, words", [
-    ("velocity_max_mm_s: 10.0\n    acceleration_max_mm_s2: 20.0\n    jerk_max_mm_s3: 200.0\n  Y:",
-     "velocity_max_mm_s: .nan\n    acceleration_max_mm_s2: 20.0\n    jerk_max_mm_s3: 200.0\n  Y:",
+    ("velocity_max_mm_s: 10.0\n    acceleration_max_mm_s2: 20.0\n    jerk_max_mm_s3: 5000.0\n  Y:",
+     "velocity_max_mm_s: .nan\n    acceleration_max_mm_s2: 20.0\n    jerk_max_mm_s3: 5000.0\n  Y:",
      ErrorCode.INVALID_REQUEST, ["axes.X.velocity_max_mm_s", "finite"]),
     ("min_mm: -250.0", "min_mm: 250.0", ErrorCode.INVALID_REQUEST, ["axes.X", "min_mm (250) must be below max_mm"]),
-    ("velocity_max_rad_s: 0.5\n    acceleration_max_rad_s2: 1.0\n    jerk_max_rad_s3: 10.0\n  C:",
-     "velocity_max_mm_s: 0.5\n    acceleration_max_rad_s2: 1.0\n    jerk_max_rad_s3: 10.0\n  C:",
+    ("velocity_max_rad_s: 0.5\n    acceleration_max_rad_s2: 1.0\n    jerk_max_rad_s3: 50.0\n  C:",
+     "velocity_max_mm_s: 0.5\n    acceleration_max_rad_s2: 1.0\n    jerk_max_rad_s3: 50.0\n  C:",
      ErrorCode.INVALID_REQUEST, ["axes.A", "unknown keys ['velocity_max_mm_s']", "rotary axis: use the _rad keys"]),
     ("joint: edm_y", "joint: edm_x", ErrorCode.INVALID_REQUEST, ["joint names must be unique"]),
     ("direction: 1                # +1", "direction: 2                # +1", ErrorCode.INVALID_REQUEST,
      ["axes.X.direction", "+1 or -1"]),
     ("  a_zero_rad: 0.0", "  a_zero_deg: 0.0", ErrorCode.INVALID_REQUEST, ["machine: unknown keys ['a_zero_deg']"]),
-    ("acceleration_max_mm_s2: 20.0\n    jerk_max_mm_s3: 200.0\n  Y:", "jerk_max_mm_s3: 200.0\n  Y:",
+    ("acceleration_max_mm_s2: 20.0\n    jerk_max_mm_s3: 5000.0\n  Y:", "jerk_max_mm_s3: 5000.0\n  Y:",
      ErrorCode.INVALID_REQUEST, ["axes.X: missing keys ['acceleration_max_mm_s2']"]),
     ("axes:", "axes: [", ErrorCode.FILE_ERROR, ["not valid YAML"]),
 ])
@@ -108,21 +117,45 @@ def test_missing_machine_file_and_unconfigured_axis(tmp_path, machine):
 
 # -- time law ----------------------------------------------------------------------------------
 def test_straight_line_is_time_optimal_and_at_rest(machine):
-    """Bang-coast-bang on a line: T = L/v + v/a exactly (with the whole limit given to toppra)."""
-    t = time_parameterize(line(), AXES, machine.limits_for(AXES), TimingOptions(limit_fraction=1.0))
-    assert t.duration == pytest.approx(50.0 / 10.0 + 10.0 / 20.0, rel=2e-3)
-    assert t.peak_velocity[0] == pytest.approx(10.0, rel=1e-3) and t.peak_velocity[0] <= 10.0 * (1 + 1e-6)
-    assert t.peak_acceleration[0] <= 20.0 * (1 + 1e-6) and t.peak_acceleration[0] > 19.9
+    """Bang-coast-bang on a line: toppra's law takes T = L/v + v/a exactly (whole limit given to toppra).
+
+    The C2 spline through it rounds the acceleration steps and overshoots there by ~13 %: the measured
+    excess is removed by a uniform stretch of ~6 %, reported as time_scale.
+    """
+    t = time_parameterize(line(), AXES, no_jerk(machine).limits_for(AXES), TimingOptions(limit_fraction=1.0))
+    assert t.duration / t.time_scale == pytest.approx(50.0 / 10.0 + 10.0 / 20.0, rel=1e-4)
+    assert 1.0 < t.time_scale < 1.08
+    assert t.peak_velocity[0] <= 10.0 * (1 + 1e-6) and t.peak_velocity[0] > 9.0
+    assert t.peak_acceleration[0] == pytest.approx(20.0, rel=1e-6) and t.peak_acceleration[0] <= 20.0 * (1 + 1e-9)
     np.testing.assert_array_equal(t.velocities[[0, -1]], 0.0)
     np.testing.assert_array_equal(t.peak_velocity[1:], 0.0)
     assert t.times[0] == 0.0 and np.all(np.diff(t.times) > 0)
 
 
-def check_trajectory(t, samples, v_lim, a_lim):
+def quintic_peaks(t, p, v, a, n=17):
+    """Peaks of |v|, |a|, |jerk| of the quintics a joint_trajectory_controller puts through (p, v, a) points."""
+    T = np.diff(t)[:, None]
+    h, v0, v1, a0, a1 = p[1:] - p[:-1], v[:-1], v[1:], a[:-1], a[1:]
+    c3 = (20 * h - (8 * v1 + 12 * v0) * T - (3 * a0 - a1) * T ** 2) / (2 * T ** 3)
+    c4 = (-30 * h + (14 * v1 + 16 * v0) * T + (3 * a0 - 2 * a1) * T ** 2) / (2 * T ** 4)
+    c5 = (12 * h - 6 * (v1 + v0) * T + (a1 - a0) * T ** 2) / (2 * T ** 5)
+    x = np.linspace(0.0, 1.0, n)[:, None, None] * T[None]
+    vel = v0 + a0 * x + 3 * c3 * x ** 2 + 4 * c4 * x ** 3 + 5 * c5 * x ** 4
+    acc = a0 + 6 * c3 * x + 12 * c4 * x ** 2 + 20 * c5 * x ** 3
+    jerk = 6 * c3 + 24 * c4 * x + 60 * c5 * x ** 2
+    return [np.abs(y).max(axis=(0, 1)) for y in (vel, acc, jerk)]
+
+
+def check_trajectory(t, samples, v_lim, a_lim, j_lim=np.inf):
     """Limits, rest, finite differences, measured deviation: the properties every timed plan must have."""
     assert np.all(np.abs(t.velocities) <= v_lim * (1 + 1e-6))
     assert np.all(np.abs(t.accelerations) <= a_lim * (1 + 1e-6))
     assert np.all(t.peak_velocity <= v_lim * (1 + 1e-6)) and np.all(t.peak_acceleration <= a_lim * (1 + 1e-6))
+    assert np.all(t.peak_jerk <= j_lim * (1 + 1e-6))
+    # between the points too, as a controller interpolating quintics runs it: the quintics are the spline
+    qv, qa, qj = quintic_peaks(t.times, t.positions, t.velocities, t.accelerations)
+    assert np.all(qv <= v_lim * (1 + 1e-6)) and np.all(qa <= a_lim * (1 + 1e-6)) and np.all(qj <= j_lim * (1 + 1e-6))
+    np.testing.assert_allclose(qj, t.peak_jerk, rtol=1e-5)
     np.testing.assert_array_equal(t.velocities[[0, -1]], 0.0)
     assert t.times[0] == 0.0 and np.all(np.diff(t.times) > 0)
     # the points are the certified samples (measured by evaluating toppra's trajectory at their times)
@@ -143,7 +176,7 @@ def check_trajectory(t, samples, v_lim, a_lim):
 def test_curved_path_limits_fd_and_deviation(machine):
     q = curved()
     t = time_parameterize(q, AXES, machine.limits_for(AXES))
-    check_trajectory(t, q, vmax(machine), amax(machine))
+    check_trajectory(t, q, vmax(machine), amax(machine), jmax(machine))
     # the spline between samples stays within a micrometre of the chord (samples 0.03 mm apart)
     assert np.all(t.deviation_between_samples[:3] < 1e-3) and np.all(t.deviation_between_samples[3:] < 1e-5)
     assert t.deviation_between_samples.max() > 0          # measured, not assumed
@@ -151,18 +184,31 @@ def test_curved_path_limits_fd_and_deviation(machine):
 
 def test_plan_needing_more_than_a_limit_is_slowed(machine):
     q = curved()
-    fast = time_parameterize(q, AXES, machine.limits_for(AXES))
-    # halve X's velocity limit: X now saturates at the new limit and the plan takes longer
-    slow_x = replace(machine, axes={**machine.axes, "X": replace(machine.axes["X"], velocity_max=5.0)})
+    free = no_jerk(machine)
+    fast = time_parameterize(q, AXES, free.limits_for(AXES))
+    # halve X's velocity limit: X now runs at (just under) the new limit and the plan takes longer
+    slow_x = replace(free, axes={**free.axes, "X": replace(free.axes["X"], velocity_max=5.0)})
     slow = time_parameterize(q, AXES, slow_x.limits_for(AXES))
     assert fast.peak_velocity[0] > 5.0 * 1.5
-    assert slow.peak_velocity[0] <= 5.0 * (1 + 1e-6) and slow.peak_velocity[0] > 5.0 * 0.99
+    assert slow.peak_velocity[0] <= 5.0 * (1 + 1e-6) and slow.peak_velocity[0] > 5.0 * 0.9
     assert slow.duration > fast.duration * 1.6
     check_trajectory(slow, q, vmax(slow_x), amax(slow_x))
-    # a tighter acceleration limit lengthens the ramps the same way
-    soft = replace(machine, axes={**machine.axes, "X": replace(machine.axes["X"], acceleration_max=2.0)})
+    # a tighter acceleration limit lengthens the ramps the same way (toppra's law: L/v + v/a exactly)
+    soft = replace(free, axes={**free.axes, "X": replace(free.axes["X"], acceleration_max=2.0)})
     t = time_parameterize(line(), AXES, soft.limits_for(AXES), TimingOptions(limit_fraction=1.0))
-    assert t.duration == pytest.approx(50.0 / 10.0 + 10.0 / 2.0, rel=2e-3)
+    assert t.duration / t.time_scale == pytest.approx(50.0 / 10.0 + 10.0 / 2.0, rel=1e-4)
+
+
+def test_jerk_limits_are_met_by_stretching(machine):
+    q = curved()
+    free = time_parameterize(q, AXES, no_jerk(machine).limits_for(AXES))
+    gentle = replace(machine, axes={**machine.axes, "X": replace(machine.axes["X"], jerk_max=500.0)})
+    limited = time_parameterize(q, AXES, gentle.limits_for(AXES))
+    assert free.peak_jerk[0] > 2 * 500.0                   # toppra alone does not bound jerk
+    assert limited.time_scale > free.time_scale
+    assert limited.duration == pytest.approx(free.duration * limited.time_scale / free.time_scale, rel=1e-9)
+    assert limited.peak_jerk[0] == pytest.approx(500.0, rel=1e-6)
+    check_trajectory(limited, q, vmax(gentle), amax(gentle), jmax(gentle))
 
 
 def test_position_outside_travel_is_rejected_with_axis_and_time(machine):
@@ -245,13 +291,16 @@ def test_real_plan_timed_on_the_default_machine(real_plan, machine):
     plan = real_plan
     j = plan_trajectory(plan.samples, plan.axis_names, machine)
     t = j.timed
-    check_trajectory(t, plan.samples, vmax(machine), amax(machine))
+    check_trajectory(t, plan.samples, vmax(machine), amax(machine), jmax(machine))
     assert len(j.times) == len(plan.samples) > 1000
     # first point the start pose outside the blisk, last the machining pose of channel 3, both at rest
     np.testing.assert_allclose(j.positions[0], plan.samples[0], atol=1e-9)
     np.testing.assert_allclose(j.positions[-1], [0, 0, 0, 3 * 2 * np.pi / 60, 0], atol=1e-9)
-    # some axis runs at its velocity or acceleration limit (time-optimal), none beyond
-    assert max(np.max(t.peak_velocity / vmax(machine)), np.max(t.peak_acceleration / amax(machine))) > 0.98
+    # some axis runs at its velocity, acceleration or jerk limit, none beyond (on this plan: C's jerk,
+    # which toppra does not model, sets a uniform stretch of about 2)
+    assert max(np.max(t.peak_velocity / vmax(machine)), np.max(t.peak_acceleration / amax(machine)),
+               np.max(t.peak_jerk / jmax(machine))) == pytest.approx(1.0, rel=1e-6)
+    assert t.time_scale < 3.0
     # measured deviation between samples from the certified chords: sub-micrometre / sub-microradian
     assert np.all(t.deviation_between_samples[:3] < 1e-3) and np.all(t.deviation_between_samples[3:] < 1e-5)
     assert 2.0 < j.duration < 60.0
@@ -319,4 +368,4 @@ def test_machine_a_zero_and_c_pivot_keep_the_certified_poses(real_plan, machine)
     np.testing.assert_allclose(j.positions[-1, 3], 0.5 + 3 * 2 * np.pi / 60, atol=1e-12)
     # the pivot moves X, Y, Z as C turns: a different (still limited) motion, not a copy
     assert np.abs(j.positions[:, :3] - plan.samples[:, :3]).max() > 2.0
-    check_trajectory(j.timed, j.positions, vmax(machine), amax(machine))
+    check_trajectory(j.timed, j.positions, vmax(machine), amax(machine), jmax(machine))

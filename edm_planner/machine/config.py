@@ -148,7 +148,8 @@ def parse_machine(doc, source="<machine>"):
         raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: expected a mapping with 'machine' and 'axes'")
     unknown = sorted(set(doc) - {"machine", "axes"})
     if unknown:
-        raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: unknown top-level keys {unknown} (allowed: machine, axes)")
+        raise EdmError(ErrorCode.INVALID_REQUEST,
+                       f"{source}: unknown top-level keys {unknown} (allowed: machine, axes)")
     machine = doc.get("machine") or {}
     if not isinstance(machine, dict):
         raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: machine: expected a mapping")

@@ -1,20 +1,22 @@
 """Time-optimal parameterisation of a certified axis path (toppra), with measured deviation.
 
-The geometric path is fixed: a C2 cubic spline in axis space through the
-certified samples, parameterised by the normalised weighted chord length
-``s`` in [0, 1] (rotary axes weighted by ``rotary_lever`` mm/rad). toppra (reachability
-analysis, Pham & Pham 2018) finds the fastest ``s(t)`` under per-axis velocity
-and acceleration limits that starts and ends at rest, with one grid point per
-sample, and the trajectory is ``q(s(t))`` with ``s`` piecewise at constant
-path acceleration (toppra's ``ParametrizeConstAccel``).
+toppra (reachability analysis, Pham & Pham 2018) finds the fastest path
+velocity along a cubic spline through the certified samples (parameter: the
+normalised weighted chord length, rotary axes weighted by ``rotary_lever``
+mm/rad) under per-axis velocity and acceleration limits, starting and ending at
+rest, with one grid point per sample. The trajectory is toppra's
+``ParametrizeSpline``: the clamped C2 cubic spline q(t) through the samples at
+those times. Being piecewise cubic with knots at the points, it is exactly
+what a controller interpolating quintics through each point's position,
+velocity and acceleration executes (joint_trajectory_controller), so the
+checks below hold for the executed motion, not just at the points.
 
-Nothing is assumed about the result: the limits are re-checked on the timed
-trajectory at every sample and at every segment midpoint (and time is
-stretched uniformly if toppra's grid discretisation left an excess), the
-deviation from the certified samples is measured by evaluating the timed
-trajectory at the samples' times, and the deviation between samples from the
-chord the certification checked (axis-linear motion) is measured at the
-segment midpoints.
+Nothing is assumed: the exact velocity, acceleration and jerk peaks of the
+piecewise cubic are computed and any excess (toppra's grid discretisation,
+the spline fit, or a configured jerk limit, which toppra does not model) is
+removed by a uniform time stretch, which keeps the path; the deviation from
+the certified samples is measured at the samples' times, and between samples
+the distance from the chord the certification checked (axis-linear motion).
 """
 
 import logging
@@ -66,15 +68,16 @@ class TimedTrajectory:
         [mm, rad], [mm/s, rad/s], [mm/s^2, rad/s^2]; velocities zero at both ends.
     sample_index : (n,) int
         The plan sample each point is (consecutive duplicate samples are dropped).
-    peak_velocity, peak_acceleration : (k,) float
-        Largest magnitudes over the points and the segment midpoints.
+    peak_velocity, peak_acceleration, peak_jerk : (k,) float
+        Exact largest magnitudes of the piecewise-cubic trajectory [mm/s, rad/s ...; ^2, ^3].
     deviation_at_samples : (k,) float
         max |q(t_i) - sample_i| per axis, the timed trajectory evaluated at the samples' times [mm, rad].
     deviation_between_samples : (k,) float
-        max distance per axis of the trajectory, at the time it reaches the middle of each segment's
-        path parameter, from the chord midpoint (the axis-linear motion that was certified) [mm, rad].
+        Largest off-chord distance per axis of the trajectory between samples, from the axis-linear
+        motion that was certified (8 points a segment) [mm, rad].
     time_scale : float
-        Uniform time stretch applied after verification (1.0: toppra's timing met every limit).
+        Uniform time stretch applied after verification (1.0: toppra's timing met every limit);
+        also how jerk limits are met, which toppra does not model.
     """
 
     axis_names: tuple
@@ -85,6 +88,7 @@ class TimedTrajectory:
     sample_index: np.ndarray
     peak_velocity: np.ndarray
     peak_acceleration: np.ndarray
+    peak_jerk: np.ndarray
     deviation_at_samples: np.ndarray
     deviation_between_samples: np.ndarray
     time_scale: float = 1.0
@@ -150,56 +154,63 @@ def time_parameterize(samples, axis_names, limits, options=TimingOptions()):
     f = options.limit_fraction
     cons = [constraint.JointVelocityConstraint(np.stack([-vmax * f, vmax * f], axis=1)),
             constraint.JointAccelerationConstraint(np.stack([-amax * f, amax * f], axis=1))]
-    inst = algo.TOPPRA(cons, path, gridpoints=ss, parametrizer="ParametrizeConstAccel")
+    # ParametrizeSpline: the clamped C2 cubic spline q(t) through the samples at toppra's times.
+    # Piecewise cubic with knots at the points, so a controller's quintic through each point's
+    # (position, velocity, acceleration) reproduces it exactly: what is verified here is what runs.
+    inst = algo.TOPPRA(cons, path, gridpoints=ss, parametrizer="ParametrizeSpline")
     traj = inst.compute_trajectory(0.0, 0.0)
-    data = inst.problem_data
     if traj is None:
-        raise EdmError(ErrorCode.INFEASIBLE, f"toppra found no parameterisation: {data.return_code.value}")
-    sd = np.maximum(np.asarray(data.sd_vec, dtype=np.float64), 0.0)
-    sdd = np.asarray(data.sdd_vec, dtype=np.float64)[: len(ss) - 1]
-    ds = np.diff(ss)
-    # constant path acceleration per segment: the time of a segment from its end speeds
-    dt = 2.0 * ds / (sd[:-1] + sd[1:])
-    times = np.concatenate([[0.0], np.cumsum(dt)])
-    qs, qss = path(ss, 1), path(ss, 2)
-    # at a grid point the path acceleration jumps; the mean of both sides is the value a
-    # central difference sees and stays within the (convex) limits
-    u = np.empty(len(ss))
-    u[0], u[-1] = sdd[0], sdd[-1]
-    u[1:-1] = 0.5 * (sdd[:-1] + sdd[1:])
-    pos = path(ss)
-    vel = qs * sd[:, None]
-    acc = qss * sd[:, None] ** 2 + qs * u[:, None]
+        raise EdmError(ErrorCode.INFEASIBLE,
+                       f"toppra found no parameterisation: {inst.problem_data.return_code.value}")
+    times = np.asarray(traj.ss_waypoints, dtype=np.float64)
+    if len(times) != len(ss):
+        raise EdmError(ErrorCode.INTERNAL, f"toppra dropped {len(ss) - len(times)} grid points (zero-time steps)")
+    coef = traj.cspl.c                               # (4, n-1, k): c0 tau^3 + c1 tau^2 + c2 tau + c3
+    pos, vel, acc = traj(times), traj(times, 1), traj(times, 2)
+    if np.max(np.abs(vel[[0, -1]])) > 1e-9 * vmax.max():
+        raise EdmError(ErrorCode.INTERNAL, f"trajectory not at rest at its ends: {vel[[0, -1]]}")
     vel[0] = vel[-1] = 0.0
-
-    # verify on toppra's own trajectory: at the points (one-sided) and the segment midpoints
-    t_mid = 0.5 * (times[:-1] + times[1:])
-    v_mid, a_mid = traj(t_mid, 1), traj(t_mid, 2)
-    peak_v = np.max(np.abs(np.vstack([vel, v_mid])), axis=0)
-    peak_a = np.max(np.abs(np.vstack([acc, a_mid, traj(times[:-1], 2)])), axis=0)
-    excess = max(float(np.max(peak_v / vmax)), float(np.sqrt(np.max(peak_a / amax))))
+    # exact peaks of the piecewise cubic: acceleration is linear per segment (extremes at knots),
+    # velocity quadratic (extremes at knots or where the acceleration crosses zero), jerk constant
+    dt = np.diff(times)[:, None]
+    tau = np.clip(-coef[1] / np.where(coef[0] == 0, np.inf, 3 * coef[0]), 0.0, dt)
+    v_vertex = 3 * coef[0] * tau ** 2 + 2 * coef[1] * tau + coef[2]
+    peak_v = np.maximum(np.abs(vel).max(axis=0), np.abs(v_vertex).max(axis=0))
+    peak_a = np.abs(acc).max(axis=0)
+    peak_j = np.abs(6 * coef[0]).max(axis=0)
+    jmax = np.array([lim.jerk_max for lim in limits])
+    excess = max(float(np.max(peak_v / vmax)), float(np.sqrt(np.max(peak_a / amax))),
+                 float(np.cbrt(np.max(peak_j / jmax))))
     scale = 1.0
     if excess > 1.0 + options.limit_tolerance:
-        # uniform stretch: velocities / scale, accelerations / scale^2, same path
+        # uniform stretch q(t / scale): the same path and the same spline (clamped cubic spline
+        # interpolation commutes with scaling time); velocity / scale, acceleration / scale^2, jerk / scale^3
         scale = excess * (1.0 + 1e-12)
-        logger.info("toppra's timing exceeds a limit by %.3g %%; stretching time by %.6f", (excess - 1) * 100, scale)
+        logger.info("timing exceeds a limit (toppra grid, spline fit or jerk); stretching time by %.6f", scale)
     times_out = times * scale
     vel, acc = vel / scale, acc / scale ** 2
-    peak_v, peak_a = peak_v / scale, peak_a / scale ** 2
+    peak_v, peak_a, peak_j = peak_v / scale, peak_a / scale ** 2, peak_j / scale ** 3
 
-    deviation = np.max(np.abs(traj(times) - q), axis=0)
-    # time at which s reaches the segment's middle (sd^2 is linear in s at constant path acceleration)
-    sd_mid = np.sqrt(0.5 * (sd[:-1] ** 2 + sd[1:] ** 2))
-    t_half = times[:-1] + ds / (sd[:-1] + sd_mid)
-    between = np.max(np.abs(traj(t_half) - 0.5 * (q[:-1] + q[1:])), axis=0)
+    deviation = np.max(np.abs(pos - q), axis=0)
+    # between samples: the spline's distance from the certified chord, per axis, at 8 points a segment
+    # (the off-chord part: the point is compared with its projection on the chord, weighted as s)
+    w = np.array([1.0 if a in ("X", "Y", "Z") else options.rotary_lever for a in axis_names]) ** 2
+    frac = np.linspace(0.0, 1.0, 10)[1:-1]
+    inner = np.concatenate([traj(times[:-1] + x * np.diff(times))[None] for x in frac])   # (8, n-1, k)
+    chord = q[1:] - q[:-1]
+    d = inner - q[:-1]
+    sigma = np.clip((d * chord * w).sum(-1) / np.maximum((chord * chord * w).sum(-1), 1e-300), 0.0, 1.0)
+    between = np.max(np.abs(d - sigma[..., None] * chord), axis=(0, 1))
     if not np.all(np.diff(times_out) > 0):
         raise EdmError(ErrorCode.INTERNAL, "time law is not strictly increasing")
 
-    check_travel(axis_names, limits, np.vstack([pos, traj(t_mid)]),
-                 np.concatenate([times_out, t_mid * scale]))
+    t_inner = np.concatenate([(times[:-1] + x * np.diff(times)) * scale for x in frac])
+    check_travel(axis_names, limits, np.vstack([pos, inner.reshape(-1, len(axis_names))]),
+                 np.concatenate([times_out, t_inner]))
     return TimedTrajectory(axis_names=axis_names, times=times_out, positions=pos, velocities=vel,
                            accelerations=acc, sample_index=index, peak_velocity=peak_v, peak_acceleration=peak_a,
-                           deviation_at_samples=deviation, deviation_between_samples=between, time_scale=scale)
+                           peak_jerk=peak_j, deviation_at_samples=deviation, deviation_between_samples=between,
+                           time_scale=scale)
 
 
 def check_travel(axis_names, limits, positions, times):

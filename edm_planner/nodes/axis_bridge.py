@@ -179,7 +179,8 @@ class AxisBridgeNode(Node):
         response.peak_velocity = [float(v) for v in timed.peak_velocity]
         response.peak_acceleration = [float(v) for v in timed.peak_acceleration]
         summary = (f"plan {plan.plan_id} channel {plan.channel}: {response.point_count} points, "
-                   f"{response.duration:.3f} s (time stretch {timed.time_scale:.4f} after limit check), "
+                   f"{response.duration:.3f} s (uniform time stretch {timed.time_scale:.4f} to meet the "
+                   f"velocity, acceleration and jerk limits), "
                    f"deviation from the certified chords <= {timed.deviation_between_samples[:3].max() * 1e3:.3f} um "
                    f"/ {timed.deviation_between_samples[3:].max() if len(plan.axis_names) > 3 else 0.0:.2e} rad")
         if not request.dry_run:
