@@ -4,9 +4,10 @@ toppra (reachability analysis, Pham & Pham 2018) finds the fastest path
 velocity along a cubic spline through the certified samples (parameter: the
 normalised weighted chord length, rotary axes weighted by ``rotary_lever``
 mm/rad) under per-axis velocity and acceleration limits, starting and ending at
-rest, with one grid point per sample. The trajectory is toppra's
-``ParametrizeSpline``: the clamped C2 cubic spline q(t) through the samples at
-those times. Being piecewise cubic with knots at the points, it is exactly
+rest, with one grid point per sample. Its path-velocity profile is smoothed
+(never raised: :func:`smooth_profile`) and the trajectory is, as toppra's
+``ParametrizeSpline`` builds it, the clamped C2 cubic spline q(t) through the
+samples at the resulting times. Being piecewise cubic with knots at the points, it is exactly
 what a controller interpolating quintics through each point's position,
 velocity and acceleration executes (joint_trajectory_controller), so the
 checks below hold for the executed motion, not just at the points.
@@ -23,6 +24,8 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.ndimage import minimum_filter1d, uniform_filter1d
 
 from ..errors import EdmError, ErrorCode
 
@@ -42,17 +45,53 @@ class TimingOptions:
         grid discretisation (the limits themselves are then verified, not trusted).
     limit_tolerance : float
         Relative excess over a limit accepted as round-off in the verification.
+    smoothing_window : int
+        Grid points of the filter that smooths toppra's path-velocity profile before the spline
+        (1: none). toppra switches the path acceleration between its bounds from one grid point to
+        the next; those switches are jerk, which toppra does not bound. A moving minimum then a
+        moving mean (never faster than toppra at any point) cut the jerk so that, on the channel-3
+        plan, the stretch the jerk limits need falls from 2.06 to 1.31 (15.4 s -> 10.6 s).
     """
 
     rotary_lever: float = 100.0
     limit_fraction: float = 0.999
     limit_tolerance: float = 1e-9
+    smoothing_window: int = 9
 
     def __post_init__(self):
         if not (np.isfinite(self.rotary_lever) and self.rotary_lever > 0):
             raise ValueError(f"rotary_lever must be positive, got {self.rotary_lever!r}")
         if not (0 < self.limit_fraction <= 1):
             raise ValueError(f"limit_fraction must be in (0, 1], got {self.limit_fraction!r}")
+        if int(self.smoothing_window) != self.smoothing_window or self.smoothing_window < 1:
+            raise ValueError(f"smoothing_window must be a positive integer, got {self.smoothing_window!r}")
+
+
+def smooth_profile(x, window):
+    """Smooth a squared path-velocity profile without exceeding it anywhere.
+
+    Moving minimum then moving mean over ``window`` points: every mean is over minima of windows
+    that contain the point, so the result is <= ``x`` pointwise. The rest states at both ends are
+    kept out of the minimum (they would spread zero speed, i.e. infinite time) and restored after.
+
+    Parameters
+    ----------
+    x : (n,) float
+        sd^2 at the grid points, zero at both ends.
+    window : int
+
+    Returns
+    -------
+    (n,) float
+    """
+    if window <= 1 or len(x) < 3:
+        return x.copy()
+    inner = x.copy()
+    inner[0], inner[-1] = inner[1], inner[-2]
+    out = uniform_filter1d(minimum_filter1d(inner, window, mode="nearest"), window, mode="nearest")
+    out = np.minimum(out, inner)            # round-off of the mean
+    out[0], out[-1] = x[0], x[-1]
+    return out
 
 
 @dataclass
@@ -154,18 +193,20 @@ def time_parameterize(samples, axis_names, limits, options=TimingOptions()):
     f = options.limit_fraction
     cons = [constraint.JointVelocityConstraint(np.stack([-vmax * f, vmax * f], axis=1)),
             constraint.JointAccelerationConstraint(np.stack([-amax * f, amax * f], axis=1))]
-    # ParametrizeSpline: the clamped C2 cubic spline q(t) through the samples at toppra's times.
-    # Piecewise cubic with knots at the points, so a controller's quintic through each point's
-    # (position, velocity, acceleration) reproduces it exactly: what is verified here is what runs.
-    inst = algo.TOPPRA(cons, path, gridpoints=ss, parametrizer="ParametrizeSpline")
-    traj = inst.compute_trajectory(0.0, 0.0)
-    if traj is None:
+    # toppra's path velocities at the grid points (reachability analysis, Seidel LP)
+    inst = algo.TOPPRA(cons, path, gridpoints=ss)
+    _, sd, _ = inst.compute_parameterization(0.0, 0.0)
+    if sd is None:
         raise EdmError(ErrorCode.INFEASIBLE,
                        f"toppra found no parameterisation: {inst.problem_data.return_code.value}")
-    times = np.asarray(traj.ss_waypoints, dtype=np.float64)
-    if len(times) != len(ss):
-        raise EdmError(ErrorCode.INTERNAL, f"toppra dropped {len(ss) - len(times)} grid points (zero-time steps)")
-    coef = traj.cspl.c                               # (4, n-1, k): c0 tau^3 + c1 tau^2 + c2 tau + c3
+    x = smooth_profile(np.maximum(np.asarray(sd, dtype=np.float64), 0.0) ** 2, options.smoothing_window)
+    sd = np.sqrt(x)
+    times = np.concatenate([[0.0], np.cumsum(2.0 * np.diff(ss) / (sd[:-1] + sd[1:]))])
+    # as toppra's ParametrizeSpline: the clamped C2 cubic spline q(t) through the samples at these
+    # times. Piecewise cubic with knots at the points, so a controller's quintic through each point's
+    # (position, velocity, acceleration) reproduces it exactly: what is verified here is what runs.
+    traj = CubicSpline(times, q, bc_type=((1, np.zeros(q.shape[1])), (1, np.zeros(q.shape[1]))))
+    coef = traj.c                                    # (4, n-1, k): c0 tau^3 + c1 tau^2 + c2 tau + c3
     pos, vel, acc = traj(times), traj(times, 1), traj(times, 2)
     if np.max(np.abs(vel[[0, -1]])) > 1e-9 * vmax.max():
         raise EdmError(ErrorCode.INTERNAL, f"trajectory not at rest at its ends: {vel[[0, -1]]}")
