@@ -55,8 +55,9 @@ def system(tmp_path_factory, field_cache):
     tight.write_text(machine_text.replace("min_mm: -250.0\n    max_mm: 250.0", "min_mm: -250.0\n    max_mm: 15.0"))
     ros.add(GeometryLoaderNode(context=ros.context))
     ros.add(TrajectoryPlannerNode(context=ros.context, parameter_overrides=[Parameter("cache_dir", value=field_cache)]))
+    exports = tmp_path_factory.mktemp("nc")
     ros.add(AxisBridgeNode(context=ros.context, parameter_overrides=[
-        Parameter("joint_states_topic", value="/test_joint_states")]))
+        Parameter("joint_states_topic", value="/test_joint_states"), Parameter("export_dir", value=str(exports))]))
     # the same bridge on a machine whose X travel ends at 15 mm, serving under another name
     ros.add(AxisBridgeNode(context=ros.context, cli_args=["--ros-args", "-r", "execute_plan:=tight/execute_plan",
                                                           "-r", "__node:=axis_bridge_tight"],
@@ -85,7 +86,7 @@ def system(tmp_path_factory, field_cache):
     assert res.success, res.message
     assert plans.wait(1, 10)
     samples = np.array([p.positions for p in res.axis_path.points])
-    yield dict(ros=ros, client=client, plan=res, samples=samples, trajectories=trajectories,
+    yield dict(ros=ros, client=client, plan=res, samples=samples, exports=exports, plans=plans, trajectories=trajectories,
                tight_trajectories=tight_trajectories, pivot_trajectories=pivot_trajectories,
                joint_states=joint_states)
     ros.close()
@@ -157,6 +158,30 @@ def test_execute_publishes_the_joint_trajectory(system):
     assert np.all(np.abs((p[2:] - p[:-2]) / span - v[1:-1]) <= 0.5 * amax * span)
     err = np.abs((v[2:] - v[:-2]) / span - a[1:-1]) / amax
     assert np.all(err < 0.5) and np.all(np.median(err, axis=0) < 1e-3)
+
+
+def test_nc_and_csv_export_match_the_published_trajectory(system):
+    from edm_planner.machine.nc import parse_nc
+
+    inbox = system["trajectories"]
+    count = len(inbox.items)
+    res = execute(system)
+    assert res.success, res.message
+    plan_id = system["plan"].plan_id
+    nc, csv = system["exports"] / f"{plan_id}.nc", system["exports"] / f"{plan_id}.csv"
+    assert str(nc) in res.message and nc.exists() and csv.exists()
+    assert inbox.wait(count + 1, 10)
+    msg = inbox.items[-1]
+    back = parse_nc(nc.read_text())
+    assert back["plan_id"] == plan_id and back["axis_names"] == ("X", "Y", "Z", "A", "C")
+    assert back["geometry_id"] == system["plans"].items[-1].geometry_id and len(back["geometry_id"]) == 64
+    p = np.array([pt.positions for pt in msg.points])
+    t = np.array([seconds(pt.time_from_start) for pt in msg.points])
+    assert np.abs(back["positions"][:, :3] - p[:, :3]).max() <= 0.5e-4 + 1e-12
+    assert np.abs(back["positions"][:, 3:] - p[:, 3:]).max() <= np.radians(0.5e-5) + 1e-15
+    np.testing.assert_allclose(back["times"], t, rtol=1e-6, atol=1e-6)
+    table = np.loadtxt(csv, delimiter=",", skiprows=1)
+    np.testing.assert_allclose(table[:, 1::3], p, atol=1e-12)
 
 
 def test_bad_requests(system):

@@ -32,6 +32,10 @@ joint_state_max_age : float
     A JointState older than this is not used for the start check [s].
 max_plans : int
     Plans kept (oldest dropped first).
+export_dir : str
+    When set, every timed plan (dry runs included: the way to get a program without moving
+    the machine) is also written there as ``<plan_id>.nc`` (ISO, G93 inverse time) and
+    ``<plan_id>.csv`` (timed axis samples); the response message names the files.
 """
 
 import math
@@ -52,6 +56,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from ..errors import EdmError, ErrorCode
 from ..geometry.frames import rotation_about_x
 from ..machine.config import LINEAR, default_machine_path, load_machine
+from ..machine.nc import nc_program, trajectory_csv
 from ..machine.trajectory import plan_trajectory
 from .conversions import error_code
 from .geometry_loader import LATCHED
@@ -86,12 +91,13 @@ def joint_trajectory_msg(arrays, frame_id=""):
 
 
 class _StoredPlan:
-    __slots__ = ("plan_id", "channel", "geometry_id", "axis_names", "samples", "final_pose")
+    __slots__ = ("plan_id", "channel", "geometry_id", "electrode_id", "axis_names", "samples", "final_pose")
 
     def __init__(self, msg):
         self.plan_id = msg.plan_id
         self.channel = int(msg.channel)
         self.geometry_id = msg.geometry_id
+        self.electrode_id = msg.electrode_id
         self.axis_names = tuple(msg.axis_path.axis_names)
         self.samples = np.array([p.positions for p in msg.axis_path.points], dtype=np.float64).reshape(
             -1, len(self.axis_names))
@@ -115,6 +121,7 @@ class AxisBridgeNode(Node):
         self.declare_parameter("start_tolerance_rotary", 0.001)
         self.declare_parameter("joint_state_max_age", 5.0)
         self.declare_parameter("max_plans", 50)
+        self.declare_parameter("export_dir", "")
         path = self.get_parameter("machine_file").value or _default_machine_file()
         self.machine = load_machine(path)   # a bad machine file stops the node at start, with the key named
         self.get_logger().info(f"machine {self.machine.name!r} from {path}: joints "
@@ -183,6 +190,9 @@ class AxisBridgeNode(Node):
                    f"velocity, acceleration and jerk limits), "
                    f"deviation from the certified chords <= {timed.deviation_between_samples[:3].max() * 1e3:.3f} um "
                    f"/ {timed.deviation_between_samples[3:].max() if len(plan.axis_names) > 3 else 0.0:.2e} rad")
+        export_dir = self.get_parameter("export_dir").value
+        if export_dir:
+            summary += "; " + self._export(plan, arrays, export_dir)
         if not request.dry_run:
             self.trajectory_pub.publish(joint_trajectory_msg(arrays))
             summary += f"; sent on {self.trajectory_pub.topic_name} as joints {arrays.joint_names}"
@@ -192,6 +202,18 @@ class AxisBridgeNode(Node):
         response.error_code = error_code(ErrorCode.SUCCESS)
         response.message = summary
         self.get_logger().info(summary)
+
+    def _export(self, plan, arrays, directory):
+        try:
+            os.makedirs(directory, exist_ok=True)
+            base = os.path.join(directory, plan.plan_id)
+            with open(base + ".nc", "w") as f:
+                f.write(nc_program(arrays, plan.plan_id, plan.geometry_id, plan.channel, plan.electrode_id))
+            with open(base + ".csv", "w") as f:
+                f.write(trajectory_csv(arrays))
+        except OSError as exc:
+            raise EdmError(ErrorCode.FILE_ERROR, f"cannot write the NC/CSV export to {directory}: {exc}") from None
+        return f"written {base}.nc and {base}.csv"
 
     def _check_start_state(self, arrays):
         with self._lock:
