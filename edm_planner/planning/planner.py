@@ -79,8 +79,8 @@ def fit_path(params, nodes, level):
     if level > 0 and len(params) >= 5:
         for j in range(nodes.shape[1]):
             y = nodes[:, j]
-            if np.ptp(y) <= 1e-12:
-                continue
+            if np.abs(np.diff(y, 2)).max(initial=0.0) <= 1e-12 * max(np.abs(y).max(), 1.0):
+                continue                          # already straight (X along the X reference): nothing to smooth
             gcv = make_smoothing_spline(params, y)
             if level == 1.0:
                 values[:, j] = gcv(params)
@@ -210,8 +210,8 @@ def _plan_one(geometry, channel, electrode, options, field, progress, design, t0
     if res.status != SearchStatus.SUCCESS:
         return failed(res.status.error_code, res.message)
     nodes = _node_axes(electrode, res.states[::-1], so.axes)          # feed order
-    positions = res.states[::-1, :3]
-    params = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))])
+    # the path parameter: distance along the reference (Huang's x_i, Liu's s), 0 at the start outside
+    params = res.reference[-1] - res.reference[::-1]
     keep = np.concatenate([[True], np.diff(params) > 1e-9])
     params, nodes = params[keep], nodes[keep]
     margins = np.array([so.margin_blade, so.margin_blade, so.margin_hub_shroud, so.margin_hub_shroud])

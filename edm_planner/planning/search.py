@@ -116,6 +116,7 @@ class SearchResult:
     blocking_clearance: float = float("nan")
     furthest_reference: float = 0.0
     elapsed: float = 0.0
+    reference: np.ndarray = None             # (n,) distance along the reference at each node [mm]
 
 
 def _feature_vertices(mesh, angle=0.5, limit=3000):
@@ -176,6 +177,7 @@ class ExitSearch:
         angles = {4: [o.angle_step], 5: [o.a_step, o.angle_step], 6: [o.a_step, o.angle_step, o.angle_step]}
         self.scale = np.array([o.lateral_ratio, o.lateral_ratio] + angles[o.axes])
         self.cushion = np.inf
+        self._evaluated = None                   # (increments, clearances) the last node solve evaluated
         self.reach = float(np.linalg.norm(self.points, axis=1).max())    # lever of the rotations [mm]
 
     # -- evaluation of candidate states ---------------------------------------------
@@ -307,7 +309,7 @@ class ExitSearch:
             near = np.nonzero(s0.min(axis=1) <= s0.min() + 2 * move + 1e-3)[0]
             s0 = s0.reshape(-1)
             if s0.min() >= 0:
-                feasible.append((x0, float(s0.min())))
+                feasible.append((x0, float(s0.min()), s0))
                 if it > 0 and o.method != "max_min_distance" and s0.min() >= min(cap, predicted) - 0.002:
                     break                                  # the LP's step, confirmed by the field
             if it == iterations:
@@ -329,9 +331,11 @@ class ExitSearch:
         if not feasible:
             return None
         # most slack up to the cushion, then the smoothest
-        f1 = [float(cost_f1 @ np.abs(x - prev_incr)) for x, _ in feasible]
+        f1 = [float(cost_f1 @ np.abs(x - prev_incr)) for x, _, _ in feasible]
         i = min(range(len(feasible)), key=lambda j: (-round(min(feasible[j][1], cap), 4), f1[j]))
-        return feasible[i][0]
+        x, _, slack = feasible[i]
+        self._evaluated = (x, slack.reshape(-1, 4) + self.margins + self.bound)     # its clearances, for the caller
+        return x
 
     def _lp_step(self, s0, jac, x0, prev, rho, cap, cost_f1, method):
         """One LP: variables [dx (k), p (k), q (k), t]; x = x0 + dx, x - prev = p - q, s0 + J dx >= t."""
@@ -440,7 +444,7 @@ class ExitSearch:
 
     def _run_side(self, start, clear0, direction, t0, progress):
         o = self.options
-        states, clears = [start], [clear0]
+        states, clears, refs = [start], [clear0], [0.0]
         prev_incr = np.zeros(self.k)
         step = o.step
         f1_sum = f2_sum = 0.0
@@ -470,7 +474,13 @@ class ExitSearch:
                                       states, clears, direction, travelled, last_block)
                 continue
             new = self._candidates(state, incr[None], step, frame)
-            d, mins, ok = self._assess(new)
+            known = self._evaluated
+            if known is not None and known[0] is incr:
+                d = known[1][None]                                    # evaluated by the node's solver
+                mins = d.min(axis=1)
+            else:
+                d, mins, _ = self._assess(new)
+            self._evaluated = None
             _, f1, f2 = self._objective(d, incr[None], prev_incr)       # Huang's terms, for every method
             f1_sum += float(f1[0])
             f2_sum += float(f2[0])
@@ -478,13 +488,14 @@ class ExitSearch:
             clears.append(mins[0])
             prev_incr = incr
             travelled += step
-            step = min(o.step, step * 2.0)                     # recover the nominal step
+            refs.append(travelled)
+            step = min(o.step, step * 1.25)                    # recover the nominal step gently (X stays smooth)
             if progress is not None and len(states) % 25 == 0:
                 progress(min(travelled / expected, 0.99), len(states), travelled)
             if self._exit_reached(new, direction)[0]:
                 return SearchResult(SearchStatus.SUCCESS, f"exit found after {travelled:.2f} mm, {len(states)} nodes",
                                     np.array(states), np.array(clears), f1_sum, f2_sum, direction=direction,
-                                    furthest_reference=travelled)
+                                    furthest_reference=travelled, reference=np.array(refs))
 
     def _fail(self, status, message, states, clears, direction, travelled, block):
         return SearchResult(status, message, np.array(states), np.array(clears), direction=direction,
