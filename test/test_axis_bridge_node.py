@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 import pytest
-from edm_planner_msgs.msg import BliskGeometry, ChannelPlan, ErrorCode
+from edm_planner_msgs.msg import BliskGeometry, ChannelPlan, ErrorCode, PlannerSettings
 from edm_planner_msgs.srv import ExecutePlan, PlanChannel
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -27,6 +27,7 @@ from test_trajectory_planner_node import rear_design
 PITCH = 2 * np.pi / 60
 TOPIC = "/edm_controller/joint_trajectory"
 JOINTS = ["edm_x", "edm_y", "edm_z", "edm_a", "edm_c"]
+SIX_AXIS = default_machine_path().parent / "machine_6axis.yaml"
 
 
 class Inbox:
@@ -71,8 +72,16 @@ def system(tmp_path_factory, field_cache):
                                                           "-r", "__node:=axis_bridge_pivot"],
                            parameter_overrides=[Parameter("machine_file", value=str(pivot)),
                                                 Parameter("trajectory_topic", value="/pivot/joint_trajectory")]))
+    # and on the six-axis machine of config/machine_6axis.yaml
+    ros.add(AxisBridgeNode(context=ros.context, cli_args=["--ros-args", "-r", "execute_plan:=six/execute_plan",
+                                                          "-r", "__node:=axis_bridge_six"],
+                           parameter_overrides=[Parameter("machine_file", value=str(SIX_AXIS)),
+                                                Parameter("joint_states_topic", value=""),
+                                                Parameter("trajectory_topic", value="/six/joint_trajectory")]))
     client = ros.add(Node("bridge_client", context=ros.context))
     trajectories, tight_trajectories, pivot_trajectories, plans = Inbox(), Inbox(), Inbox(), Inbox()
+    six_trajectories = Inbox()
+    client.create_subscription(JointTrajectory, "/six/joint_trajectory", six_trajectories, 10)
     geometry = threading.Event()
     client.create_subscription(BliskGeometry, "geometry", lambda m: geometry.set(), LATCHED)
     client.create_subscription(JointTrajectory, TOPIC, trajectories, 10)
@@ -88,6 +97,7 @@ def system(tmp_path_factory, field_cache):
     samples = np.array([p.positions for p in res.axis_path.points])
     yield dict(ros=ros, client=client, plan=res, samples=samples, exports=exports, plans=plans, trajectories=trajectories,
                tight_trajectories=tight_trajectories, pivot_trajectories=pivot_trajectories,
+               six_trajectories=six_trajectories,
                joint_states=joint_states)
     ros.close()
 
@@ -216,6 +226,51 @@ def test_machine_a_zero_and_c_pivot_keep_the_published_poses(system):
     np.testing.assert_allclose(kin.forward(q), poses, atol=1e-6)
     assert abs(q[-1, 3] - (0.5 + 3 * PITCH)) < 1e-9
     assert np.abs(q[:, :3] - system["samples"][:, :3]).max() > 2.0
+
+
+def test_six_axis_machine_executes_a_six_axis_plan(system):
+    """machine_file = config/machine_6axis.yaml: a 6-axis plan is sent as six joints; a 5-axis plan is refused."""
+    from edm_planner.machine.kinematics import axis_poses
+
+    res = execute(system, service="six/execute_plan", dry_run=True)       # the 5-axis plan: B left undefined
+    assert not res.success and res.error_code.val == ErrorCode.INVALID_REQUEST
+    assert "machine axes ['B'] not in the plan" in res.message and "edm6_reference" in res.message
+    ros, client = system["ros"], system["client"]
+    count = len(system["plans"].items)
+    plan = ros.call(client, PlanChannel, "plan_channel",
+                    PlanChannel.Request(channel=3, electrode_id="rear", electrode=rear_design(),
+                                        settings=PlannerSettings(axes=6)), timeout=300)
+    assert plan.success, plan.message
+    assert list(plan.axis_path.axis_names) == ["X", "Y", "Z", "A", "C", "B"]
+    assert system["plans"].wait(count + 1, 10)
+    res = execute(system, service="six/execute_plan", plan_id=plan.plan_id)
+    assert res.success, res.message
+    assert list(res.axis_names) == ["X", "Y", "Z", "A", "C", "B"]
+    assert system["six_trajectories"].wait(1, 10)
+    msg = system["six_trajectories"].items[-1]
+    assert list(msg.joint_names) == ["edm_x", "edm_y", "edm_z", "edm_a", "edm_c", "edm_b"]
+    samples = np.array([p.positions for p in plan.axis_path.points])
+    t = np.array([seconds(p.time_from_start) for p in msg.points])
+    p = np.array([pt.positions for pt in msg.points])
+    v = np.array([pt.velocities for pt in msg.points])
+    a = np.array([pt.accelerations for pt in msg.points])
+    assert p.shape == v.shape == a.shape == (len(samples), 6) and res.point_count == len(samples)
+    assert t[0] == 0.0 and np.all(np.diff(t) > 0) and t[-1] == pytest.approx(res.duration, abs=1e-9)
+    np.testing.assert_allclose(p, samples, atol=1e-9)
+    np.testing.assert_allclose(p[-1], [0, 0, 0, 3 * PITCH, 0, 0], atol=1e-9)
+    np.testing.assert_array_equal(v[[0, -1]], 0.0)
+    lim = load_machine(SIX_AXIS).limits_for(("X", "Y", "Z", "A", "C", "B"))
+    vmax, amax = np.array([x.velocity_max for x in lim]), np.array([x.acceleration_max for x in lim])
+    assert np.all(np.abs(v) <= vmax * (1 + 1e-6)) and np.all(np.abs(a) <= amax * (1 + 1e-6))
+    assert np.ptp(p[:, 5]) > 0.1 and np.all((p[:, 5] > lim[5].position_min) & (p[:, 5] < lim[5].position_max))
+    # the reported peaks are the spline's exact ones, between points too: at least the points' and within the limits
+    peak = np.array(res.peak_velocity)
+    assert np.all(peak >= np.abs(v).max(axis=0) - 1e-12) and np.all(peak <= vmax * (1 + 1e-6))
+    np.testing.assert_allclose(peak, np.abs(v).max(axis=0), rtol=1e-2, atol=1e-9)
+    # the sent joints reach the published electrode poses (to the poses' message precision)
+    poses = np.array([pose_to_matrix(q) for q in plan.poses.poses])
+    final0 = rotation_about_x(-3 * PITCH) @ poses[-1]
+    np.testing.assert_allclose(axis_poses(final0, ("X", "Y", "Z", "A", "C", "B"), p), poses, atol=1e-6)
 
 
 def test_start_state_checked_against_joint_states(system):

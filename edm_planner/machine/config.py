@@ -20,6 +20,8 @@ from ..errors import EdmError, ErrorCode
 LINEAR = ("X", "Y", "Z")
 ROTARY = ("A", "B", "C")
 _MACHINE_KEYS = {"name", "a_zero_rad", "c_pivot_mm"}
+#: the planner's machines (SearchOptions.axes): rotary axes of each, besides X, Y, Z
+ROTARY_SETS = {4: ("C",), 5: ("A", "C"), 6: ("A", "C", "B")}
 
 
 def _axis_keys(unit):
@@ -80,14 +82,45 @@ class MachineConfig:
     a_zero: float = 0.0                  # rad
     c_pivot: tuple = (0.0, 0.0, 0.0)     # mm, electrode frame
 
-    def limits_for(self, axis_names):
-        """Axis limits in the order of ``axis_names`` (a plan's axes); INVALID_REQUEST if one is not configured."""
-        missing = [a for a in axis_names if a not in self.axes]
-        if missing:
+    @property
+    def axis_names(self):
+        """Planner axis names in the configured (joint) order."""
+        return tuple(self.axes)
+
+    def check_axes(self, axis_names):
+        """INVALID_REQUEST unless ``axis_names`` (a plan's axes) are exactly this machine's axes, in any order.
+
+        A 4-axis plan (no A: X, Y, Z, C in channel 0, the blisk indexed outside the path) cannot run on a
+        5-axis machine as it stands, nor a 5-axis plan on a 6-axis machine (B would be left undefined).
+        """
+        names = list(axis_names)
+        missing = [a for a in names if a not in self.axes]
+        unused = [a for a in self.axes if a not in names]
+        repeated = sorted({a for a in names if names.count(a) > 1})
+        if missing or unused or repeated:
+            what = []
+            if missing:
+                what.append(f"{missing} not configured")
+            if unused:
+                what.append(f"machine axes {unused} not in the plan")
+            if repeated:
+                what.append(f"{repeated} repeated")
             raise EdmError(ErrorCode.INVALID_REQUEST,
-                           f"plan axes {list(axis_names)}: {missing} not configured on machine {self.name!r} "
-                           f"(configured: {list(self.axes)})")
+                           f"plan axes {names} do not match machine {self.name!r} (a {len(self.axes)}-axis machine: "
+                           f"{list(self.axes)}): "
+                           + "; ".join(what) + f". A {len(set(names))}-axis plan needs a {len(set(names))}-axis "
+                           f"machine file (config/machine.yaml: 5 axes, machine_4axis.yaml, machine_6axis.yaml)")
+
+    def limits_for(self, axis_names):
+        """Axis limits in the order of ``axis_names`` (a plan's axes); INVALID_REQUEST if they are not the machine's."""
+        self.check_axes(axis_names)
         return [self.axes[a] for a in axis_names]
+
+    def joint_order(self, axis_names):
+        """Indices into ``axis_names`` giving the machine's configured axis (joint) order."""
+        self.check_axes(axis_names)
+        names = list(axis_names)
+        return [names.index(a) for a in self.axes]
 
     def joint_names(self, axis_names):
         return [lim.joint for lim in self.limits_for(axis_names)]
@@ -168,6 +201,15 @@ def parse_machine(doc, source="<machine>"):
     for need in LINEAR:
         if need not in parsed:
             raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: axes: {need} missing (X, Y, Z are required)")
+    rotary = {a for a in parsed if a in ROTARY}
+    if rotary not in [set(v) for v in ROTARY_SETS.values()]:
+        raise EdmError(ErrorCode.INVALID_REQUEST,
+                       f"{source}: axes: rotary axes {sorted(rotary)} are none of the planner's machines "
+                       f"(4 axes: C; 5 axes: A, C; 6 axes: A, C, B)")
+    if "B" in parsed and any(pivot):
+        raise EdmError(ErrorCode.INVALID_REQUEST,
+                       f"{source}: machine.c_pivot_mm: a C pivot with a B axis is not modelled (B and C must "
+                       f"intersect at the electrode origin): got {list(pivot)}")
     joints = [a.joint for a in parsed.values()]
     if len(set(joints)) != len(joints):
         raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: axes: joint names must be unique, got {joints}")

@@ -1,10 +1,12 @@
 """ISO NC program and CSV of a timed plan, and the parser that reads the NC program back.
 
 NC: ``G21`` millimetres, ``G90`` absolute, ``G93`` inverse-time feed (the
-standard for simultaneous five-axis moves: ``F`` = 1 / block duration in
+standard for simultaneous multi-axis moves: ``F`` = 1 / block duration in
 minutes, so every block takes exactly the time the toppra law gives it).
 Linear axes in mm, rotary axes in degrees (what ISO controllers take), in
-machine joint coordinates (direction and offset of ``config/machine.yaml``).
+machine joint coordinates (direction and offset of ``config/machine.yaml``), one word
+per machine axis in the machine file's order: ``X Y Z C`` (4 axes, the channel
+indexed before the program), ``X Y Z A C`` or ``X Y Z A C B``.
 The first block positions the machine at the plan's start pose outside the
 blisk (``G00``); every further block is one certified sample (``G01``).
 """

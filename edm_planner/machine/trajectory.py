@@ -14,15 +14,40 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import EdmError, ErrorCode
-from .kinematics import AXES_5, FiveAxisKinematics, _rot_z, axis_poses
+from .kinematics import _rot_x, _rot_y, _rot_z, axis_poses
 from .timing import TimingOptions, check_limits, time_parameterize
+
+
+def machine_poses(final_pose, axis_names, q, a_zero=0.0, c_pivot=(0.0, 0.0, 0.0)):
+    """The machine's forward kinematics: electrode poses in W from machine axis values.
+
+    ``R_x(A - A0) . T(X, Y, Z) . T_final . T(c) . R_z(C) . T(-c) [. R_y(B)]`` (Huang eq. 2 with the
+    six-axis B of :func:`edm_planner.machine.kinematics.state_poses`; no A: the blisk indexed to the
+    channel outside the path, poses in channel 0). B only with ``c = 0``.
+    """
+    q = np.atleast_2d(np.asanyarray(q, dtype=np.float64))
+    col = {n: i for i, n in enumerate(axis_names)}
+    c = np.asarray(c_pivot, dtype=np.float64)
+    n = len(q)
+    a = q[:, col["A"]] - a_zero if "A" in col else np.zeros(n)
+    pivot, unpivot = np.eye(4), np.eye(4)
+    pivot[:3, 3], unpivot[:3, 3] = c, -c
+    inner = np.asarray(final_pose, dtype=np.float64) @ pivot @ _rot_z(q[:, col["C"]]) @ unpivot
+    if "B" in col:
+        if c.any():
+            raise EdmError(ErrorCode.INVALID_REQUEST, "a C pivot with a B axis is not modelled")
+        inner = inner @ _rot_y(q[:, col["B"]])
+    inner[:, :3, 3] += q[:, [col["X"], col["Y"], col["Z"]]]
+    return _rot_x(a) @ inner
 
 
 def machine_axis_values(samples, axis_names, final_pose, machine):
     """Planner axis values -> the machine's axis values (its A0 and C pivot), same electrode poses.
 
     With the pivot ``c`` (electrode frame) the machine reaches the planner's pose
-    with ``XYZ' = XYZ - R_final (c - R_z(C) c)`` and ``A' = A + A0``.
+    with ``XYZ' = XYZ - R_final (c - R_z(C) c)`` and ``A' = A + A0``. A four-axis plan
+    has no A (A0 unused: the channel is indexed outside the path); a six-axis plan's B
+    is taken as it is (B with a C pivot is rejected).
 
     Parameters
     ----------
@@ -44,28 +69,23 @@ def machine_axis_values(samples, axis_names, final_pose, machine):
     q = np.array(samples, dtype=np.float64)
     names = tuple(axis_names)
     pivot = np.asarray(machine.c_pivot, dtype=np.float64)
-    if not pivot.any() and machine.a_zero == 0.0:
+    a_zero = machine.a_zero if "A" in names else 0.0
+    if "B" in names and pivot.any():
+        raise EdmError(ErrorCode.INVALID_REQUEST, "a C pivot with a B axis is not modelled; plan with 5 axes")
+    if not pivot.any() and a_zero == 0.0:
         return q, 0.0
     if final_pose is None:
         raise EdmError(ErrorCode.INVALID_REQUEST, "the machine has an A0 or a C pivot: the plan's final pose is needed")
-    if "B" in names and pivot.any():
-        raise EdmError(ErrorCode.INVALID_REQUEST, "a C pivot with a B axis is not modelled; plan with 5 axes")
     col = {n: i for i, n in enumerate(names)}
     if "A" in col:
-        q[:, col["A"]] += machine.a_zero
+        q[:, col["A"]] += a_zero
     xyz = [col["X"], col["Y"], col["Z"]]
     if pivot.any():
         rz = _rot_z(q[:, col["C"]])[:, :3, :3]
         q[:, xyz] -= (pivot - rz @ pivot) @ np.asarray(final_pose)[:3, :3].T
     # measured, not assumed: the machine's kinematics at q against the planner's poses
-    full = np.zeros((len(q), 5))
-    full[:, 3] = machine.a_zero
-    for i, n in enumerate(AXES_5):
-        if n in col:
-            full[:, i] = q[:, col[n]]
-    kin = FiveAxisKinematics(np.asarray(final_pose, dtype=np.float64), 0.0, c_pivot=tuple(pivot),
-                             a_zero=machine.a_zero)
-    residual = float(np.max(np.abs(kin.forward(full) - axis_poses(final_pose, names, samples))))
+    residual = float(np.max(np.abs(machine_poses(final_pose, names, q, a_zero, pivot)
+                                   - axis_poses(final_pose, names, samples))))
     if residual > 1e-9:
         raise EdmError(ErrorCode.INTERNAL, f"machine axis conversion misses the planned poses by {residual:.3g}")
     return q, residual
@@ -78,8 +98,9 @@ class JointTrajectoryArrays:
     Attributes
     ----------
     joint_names : list of str
+        In the machine config's order.
     axis_names : tuple of str
-        Planner axis of each joint.
+        Planner axis of each joint (the machine's order, which may differ from the plan's).
     times : (n,) float
         time_from_start [s], strictly increasing, 0 at the first point.
     positions, velocities, accelerations : (n, k) float
@@ -112,6 +133,8 @@ def plan_trajectory(samples, axis_names, machine, options=TimingOptions(), final
     samples : (N, k) float
         Plan samples (planner axis values, feed order) [mm, rad].
     axis_names : sequence of str
+        The plan's axes (``plan.axis_names``); matched to the machine's by name, the result is in
+        the machine's configured joint order.
     machine : MachineConfig
     options : TimingOptions
     final_pose : (4, 4) float, optional
@@ -125,13 +148,14 @@ def plan_trajectory(samples, axis_names, machine, options=TimingOptions(), final
     Raises
     ------
     EdmError
-        INVALID_REQUEST (axes not configured, malformed samples), INFEASIBLE (travel or
+        INVALID_REQUEST (plan axes not the machine's, malformed samples), INFEASIBLE (travel or
         limit violation, with axis and time).
     """
-    axis_names = tuple(axis_names)
-    limits = machine.limits_for(axis_names)
+    order = machine.joint_order(axis_names)       # INVALID_REQUEST unless the plan's axes are the machine's
     q, residual = machine_axis_values(samples, axis_names, final_pose, machine)
-    timed = time_parameterize(q, axis_names, limits, options)
+    axis_names = tuple(axis_names[i] for i in order)
+    limits = machine.limits_for(axis_names)
+    timed = time_parameterize(q[:, order], axis_names, limits, options)
     check_limits(timed, limits)
     sign = np.array([lim.direction for lim in limits])
     offset = np.array([lim.offset for lim in limits])

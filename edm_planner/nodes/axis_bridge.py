@@ -6,8 +6,13 @@ Subscribes to the trajectory_planner's latched ``plan`` topic
 configured machine (toppra, ``edm_planner.machine.timing``) and, unless
 ``dry_run``, publishes it as ``trajectory_msgs/JointTrajectory``.
 
+Machines of 4 (X, Y, Z, C), 5 (X, Y, Z, A, C) and 6 axes (X, Y, Z, A, C, B):
+``config/machine_4axis.yaml``, ``machine.yaml``, ``machine_6axis.yaml``. The
+plan's axes must be exactly the machine's (matched by planner axis name; the
+trajectory's joints are in the machine file's order).
+
 Error codes: UNKNOWN_ID (plan never seen), INVALID_REQUEST (channel does not
-match the plan, plan axes not configured), INFEASIBLE (travel or
+match the plan, plan axes not the machine's), INFEASIBLE (travel or
 velocity/acceleration limit violated, named with axis and time; or the machine's
 ``/joint_states`` is further from the plan's start than the tolerance).
 Nothing that violates a limit is ever published.
@@ -106,7 +111,22 @@ class _StoredPlan:
         final = np.array(msg.final_pose, dtype=np.float64).reshape(4, 4)
         if "A" in self.axis_names and len(self.samples):
             final = rotation_about_x(-self.samples[-1, self.axis_names.index("A")]) @ final
+        elif len(self.samples) and len(msg.poses.poses) == len(self.samples):
+            # no A (4 axes): X, Y, Z, C are channel 0's and the blisk is indexed to the channel outside the
+            # path, so the poses are those of channel 0 turned about X by the index angle
+            final = rotation_about_x(-index_angle(self.samples[:, :3], msg.poses.poses)) @ final
         self.final_pose = final
+
+
+def index_angle(xyz, poses):
+    """Angle about X turning a 4-axis plan's channel-0 X, Y, Z into its published positions [rad].
+
+    The positions are ``R_x(angle) (XYZ + t_final)``: least squares over the centred samples.
+    """
+    p = np.array([[q.position.x, q.position.y, q.position.z] for q in poses])
+    u, v = xyz - xyz.mean(axis=0), p - p.mean(axis=0)
+    return float(np.arctan2(np.sum(u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1]),
+                            np.sum(u[:, 1] * v[:, 1] + u[:, 2] * v[:, 2])))
 
 
 class AxisBridgeNode(Node):
@@ -182,14 +202,16 @@ class AxisBridgeNode(Node):
         timed = arrays.timed
         response.duration = float(arrays.duration)
         response.point_count = len(arrays.times)
-        response.axis_names = list(plan.axis_names)
+        response.axis_names = list(arrays.axis_names)         # the machine's joint order, as the peaks
         response.peak_velocity = [float(v) for v in timed.peak_velocity]
         response.peak_acceleration = [float(v) for v in timed.peak_acceleration]
+        dev = timed.deviation_between_samples
+        linear = np.array([a in LINEAR for a in arrays.axis_names])
         summary = (f"plan {plan.plan_id} channel {plan.channel}: {response.point_count} points, "
                    f"{response.duration:.3f} s (uniform time stretch {timed.time_scale:.4f} to meet the "
                    f"velocity, acceleration and jerk limits), "
-                   f"deviation from the certified chords <= {timed.deviation_between_samples[:3].max() * 1e3:.3f} um "
-                   f"/ {timed.deviation_between_samples[3:].max() if len(plan.axis_names) > 3 else 0.0:.2e} rad")
+                   f"deviation from the certified chords <= {dev[linear].max() * 1e3:.3f} um "
+                   f"/ {dev[~linear].max() if (~linear).any() else 0.0:.2e} rad")
         export_dir = self.get_parameter("export_dir").value
         if export_dir:
             summary += "; " + self._export(plan, arrays, export_dir)
