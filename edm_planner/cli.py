@@ -55,7 +55,79 @@ def _parser():
     e.add_argument("--split-overlap", type=float, metavar="MM")
     q.add_argument("--cache-dir", default=DEFAULT_CACHE, metavar="DIR", help="distance field cache")
     q.add_argument("-v", "--verbose", action="store_true", help="log the planner's steps to stderr")
+    g = sub.add_parser("geometry", help="validate a geometry file or show its figures")
+    g.add_argument("action", choices=("validate", "info"))
+    g.add_argument("file", metavar="FILE.yaml")
+    c = sub.add_parser("check", help="re-check an exported plan with the exact clearance of every vertex",
+                       description="Exact re-check of a plan export: every electrode vertex at every sample "
+                                   "against the four channel surfaces; vertex steps; axes vs poses.")
+    c.add_argument("plan_dir", metavar="DIR")
+    c.add_argument("--geometry", required=True, metavar="FILE.yaml", help="the geometry the plan was made for")
+    c.add_argument("--threshold", type=float, default=0.0, metavar="MM", help="smallest clearance accepted")
+    c.add_argument("-v", "--verbose", action="store_true")
+    t = sub.add_parser("plot", help="pictures of an exported plan: axis curves and the channel view")
+    t.add_argument("plan_dir", metavar="DIR")
+    t.add_argument("--out", metavar="DIR", help="where the pictures go (default: the plan directory)")
+    t.add_argument("-v", "--verbose", action="store_true")
+    g.add_argument("-v", "--verbose", action="store_true")
     return p
+
+
+def _geometry(args, out):
+    from .geometry.loader import load_geometry
+
+    geometry = load_geometry(args.file)
+    if args.action == "validate":
+        print(f"{args.file}: valid, geometry id {geometry.geometry_id}, {geometry.blisk.blade_count} blades, "
+              f"electrodes {[e.electrode_id for e in geometry.electrodes]}", file=out)
+        return 0
+    for key, value in geometry.summary().items():
+        if isinstance(value, float):
+            value = f"{value:.6g}"
+        elif isinstance(value, list) and value and isinstance(value[0], float):
+            value = "[" + ", ".join(f"{v:.6g}" for v in value) + "]"
+        print(f"{key}: {value}", file=out)
+    return 0
+
+
+def _check(args, out):
+    from .geometry.loader import load_geometry
+    from .planning.export import read_plan, verify_exported_plan
+
+    geometry = load_geometry(args.geometry)
+    plan = read_plan(args.plan_dir)
+    if plan.geometry_id != geometry.geometry_id:
+        raise EdmError(ErrorCode.INVALID_REQUEST, f"the plan was made for geometry {plan.geometry_id[:12]}, "
+                                                  f"{args.geometry} is {geometry.geometry_id[:12]}")
+    check = verify_exported_plan(args.plan_dir, geometry.blisk, threshold=args.threshold,
+                                 geometry_id=geometry.geometry_id)
+    clear = ", ".join(f"{s} {v:.4f}" for s, v in check.min_clearance.items())
+    print(f"min clearance [mm]: {clear}\nlargest vertex step {check.max_vertex_step:.4f} mm; "
+          f"{check.exact_evaluations} exact evaluations in {check.elapsed:.1f} s", file=out)
+    if not check.passed:
+        raise EdmError(ErrorCode.INFEASIBLE, f"the plan does not pass: {check.message}")
+    print("passed", file=out)
+    return 0
+
+
+def _plot(args, out):
+    import pathlib
+
+    import numpy as np
+
+    from . import plots
+    from .planning.export import read_plan
+
+    plan = read_plan(args.plan_dir)
+    where = pathlib.Path(args.out or args.plan_dir)
+    where.mkdir(parents=True, exist_ok=True)
+    files = [plots.axis_curves(np.arange(len(plan.axes)), plan.axes, plan.axis_names, where / "axes_vs_index.png",
+                               "sample index (feed order)", "Axis values along the certified path")]
+    files += list(plots.channel_view(plan.workpiece_meshes(), plan.electrode_mesh, plan.poses,
+                                     where / "channel.glb", where / "channel.png"))
+    for f in files:
+        print(f"wrote {f}", file=out)
+    return 0
 
 
 class _Progress:
@@ -132,6 +204,12 @@ def main(argv=None, out=None, err=None):
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, stream=err,
                         format="%(name)s: %(message)s")
     try:
+        if args.command == "geometry":
+            return _geometry(args, out)
+        if args.command == "check":
+            return _check(args, out)
+        if args.command == "plot":
+            return _plot(args, out)
         return _plan(args, out, err)
     except EdmError as exc:
         print(f"error: {exc.code.name}: {exc.message}", file=err)

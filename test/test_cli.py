@@ -8,7 +8,7 @@ import pytest
 from edm_planner.cli import main
 from edm_planner.errors import ErrorCode
 from edm_planner.geometry.loader import load_geometry
-from edm_planner.planning.export import read_plan, verify_exported_plan
+from edm_planner.planning.export import read_plan
 
 from conftest import CONFIG
 
@@ -45,13 +45,34 @@ def test_plan_writes_a_certified_export_that_passes_the_exact_recheck(setup):
     assert plan.doc["settings"]["search"]["step"] == 0.2 and plan.doc["geometry_id"] == g.geometry_id
     # the last sample is the machining pose in channel 3: A = 3 * pitch, the rest zero
     np.testing.assert_allclose(plan.axes[-1], [0, 0, 0, 3 * g.blisk.pitch, 0], atol=1e-9)
-    check = verify_exported_plan(d / "plan", g.blisk, threshold=0.0, geometry_id=g.geometry_id)
-    assert check.passed, check.message
-    assert check.max_vertex_step <= 0.05 and check.start_outside and check.final_pose_error < 1e-9
-    # the planner's margins (0.02 mm) hold by the exact clearance of every vertex at every sample;
-    # at the machining pose the hub is the 0.1 mm discharge gap away
-    assert min(check.min_clearance.values()) >= 0.02 - 1e-3
-    assert check.min_clearance["hub"] == pytest.approx(0.1, abs=2e-3)
+    # edm-plan check: the planner's margins (0.02 mm) hold by the exact clearance of every vertex at
+    # every sample; at the machining pose the hub is the 0.1 mm discharge gap away
+    rc, out, err = _run(["check", str(d / "plan"), "--geometry", str(yaml), "--threshold", "0.019"])
+    assert rc == 0, err
+    assert "passed" in out
+    clear = dict(part.split() for part in out.split("min clearance [mm]: ")[1].split("\n")[0].split(", "))
+    assert min(float(v) for v in clear.values()) >= 0.019 and float(clear["hub"]) == pytest.approx(0.1, abs=2e-3)
+    step = float(out.split("largest vertex step ")[1].split()[0])
+    assert step <= 0.05
+    # edm-plan plot: pictures of the export
+    rc, out, err = _run(["plot", str(d / "plan"), "--out", str(d / "pictures")])
+    assert rc == 0, err
+    for name in ("axes_vs_index.png", "channel.png", "channel.glb"):
+        assert (d / "pictures" / name).stat().st_size > 10_000
+    # a plan checked against another geometry is refused before any work
+    rc, out, err = _run(["check", str(d / "plan"), "--geometry", str(CONFIG / "default_blisk.yaml")])
+    assert rc == ErrorCode.INVALID_REQUEST and "was made for geometry" in err
+
+
+def test_geometry_validate_and_info(tmp_path):
+    rc, out, err = _run(["geometry", "validate", str(CONFIG / "rotor37.yaml")])
+    assert rc == 0 and "valid" in out and "36 blades" in out
+    rc, out, err = _run(["geometry", "info", str(CONFIG / "rotor37.yaml")])
+    assert rc == 0 and "blade_count: 36" in out and "min_channel_width: 20" in out
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("blade_count: [unclosed\n")
+    rc, out, err = _run(["geometry", "validate", str(bad)])
+    assert rc == ErrorCode.FILE_ERROR and "error: FILE_ERROR" in err
 
 
 def test_failures_exit_with_their_error_code(setup, tmp_path):
