@@ -13,7 +13,7 @@ setup:
 	@bash tools/setup.sh
 
 demo: setup
-	$(PY) -m edm_planner.demo --out out/demo
+	$(PY) -m edm_planner.nodes.demo --out out/demo
 
 test: setup
 	$(PY) -m pytest -q test

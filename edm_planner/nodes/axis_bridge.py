@@ -65,7 +65,7 @@ from ..machine.nc import nc_program, trajectory_csv
 from ..machine.trajectory import plan_trajectory
 from .conversions import error_code
 from .geometry_loader import LATCHED
-from .runtime import spin_node
+from .runtime import answer, spin_node
 
 
 def duration_msg(seconds):
@@ -174,19 +174,7 @@ class AxisBridgeNode(Node):
             self._joint_state = (time.monotonic(), dict(zip(msg.name, msg.position)))
 
     def on_execute(self, request, response):
-        try:
-            self._execute(request, response)
-        except EdmError as exc:
-            response.success = False
-            response.error_code = error_code(exc.code)
-            response.message = exc.message
-            self.get_logger().warning(f"ExecutePlan refused ({exc.code.name}): {exc.message}")
-        except Exception as exc:
-            self.get_logger().error(f"ExecutePlan internal error: {exc!r}")
-            response.success = False
-            response.error_code = error_code(ErrorCode.INTERNAL)
-            response.message = f"internal error: {exc!r}"
-        return response
+        return answer(self, "ExecutePlan", self._execute, request, response)
 
     def _execute(self, request, response):
         with self._lock:

@@ -23,7 +23,6 @@ prebuild_fast : bool
 """
 
 import json
-import logging
 import os
 import threading
 
@@ -38,7 +37,7 @@ from ..errors import EdmError, ErrorCode
 from ..geometry.blisk import Blisk
 from ..interference.checker import ChannelChecker, CheckerOptions, Method
 from ..machine.kinematics import AXES_5, FiveAxisKinematics
-from .runtime import spin_node
+from .runtime import answer, spin_node
 from .conversions import error_code, msg_to_mesh, pose_to_matrix, poses_to_arrays, quaternions_to_matrices
 from .geometry_loader import LATCHED
 
@@ -102,18 +101,7 @@ class InterferenceCheckerNode(Node):
             self.get_logger().error(f"distance field build failed: {exc!r}")
 
     def on_check(self, request, response):
-        try:
-            self._check(request, response)
-            response.error_code = error_code(ErrorCode.SUCCESS)
-        except EdmError as exc:
-            response.error_code = error_code(exc.code)
-            response.message = exc.message
-            self.get_logger().warning(f"CheckInterference refused ({exc.code.name}): {exc.message}")
-        except Exception as exc:
-            logging.getLogger(__name__).exception("internal error")
-            response.error_code = error_code(ErrorCode.INTERNAL)
-            response.message = f"internal error: {exc!r}"
-        return response
+        return answer(self, "CheckInterference", self._check, request, response)
 
     def _check(self, request, response):
         gid = request.geometry_id or self.latest
@@ -152,6 +140,7 @@ class InterferenceCheckerNode(Node):
         response.error_bound = float(result.error_bound)
         n_coll = int(result.colliding.sum())
         response.message = f"{len(poses)} pose(s), {n_coll} colliding, method {method.name.lower()}"
+        response.error_code = error_code(ErrorCode.SUCCESS)
 
     @staticmethod
     def _poses(request, checker, final_pose):

@@ -28,3 +28,29 @@ def spin_node(node_class, args=None):
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def answer(node, service, fill, request, response):
+    """Serve one request: ``fill(request, response)``, with every failure mapped onto the response.
+
+    An ``EdmError`` becomes its error code and message (logged as a warning), anything else
+    INTERNAL with the exception (logged with its traceback); a response with a ``success``
+    field gets ``False`` then. ``fill`` sets the error code of the requests it answers itself.
+    """
+    from ..errors import EdmError, ErrorCode
+    from .conversions import error_code
+
+    try:
+        fill(request, response)
+        return response
+    except EdmError as exc:
+        code, message = exc.code, exc.message
+        node.get_logger().warning(f"{service} refused ({code.name}): {message}")
+    except Exception as exc:
+        logging.getLogger(node.get_name()).exception(f"{service}: internal error")
+        code, message = ErrorCode.INTERNAL, f"internal error: {exc!r}"
+    if hasattr(response, "success"):
+        response.success = False
+    response.error_code = error_code(code)
+    response.message = message
+    return response

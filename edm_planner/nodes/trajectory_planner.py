@@ -24,7 +24,6 @@ geometry_wait : float
 """
 
 import json
-import logging
 import os
 import threading
 from dataclasses import replace
@@ -47,7 +46,7 @@ from ..planning.planner import plan_channel
 from ..planning.search import SearchOptions
 from .conversions import error_code, matrix_to_pose
 from .geometry_loader import LATCHED
-from .runtime import spin_node
+from .runtime import answer, spin_node
 
 _DESIGN_FLOATS = ("discharge_gap", "circumferential_reduction", "radial_reduction", "split_fraction",
                   "split_overlap")
@@ -202,19 +201,7 @@ class TrajectoryPlannerNode(Node):
 
     # -- planning ---------------------------------------------------------------------------
     def on_plan(self, request, response):
-        try:
-            self._plan(request, response)
-        except EdmError as exc:
-            response.success = False
-            response.error_code = error_code(exc.code)
-            response.message = exc.message
-            self.get_logger().warning(f"PlanChannel refused ({exc.code.name}): {exc.message}")
-        except Exception as exc:
-            logging.getLogger(__name__).exception("internal error")
-            response.success = False
-            response.error_code = error_code(ErrorCode.INTERNAL)
-            response.message = f"internal error: {exc!r}"
-        return response
+        return answer(self, "PlanChannel", self._plan, request, response)
 
     def _plan(self, request, response):
         prepared = self._geometry(request.geometry_id)

@@ -119,9 +119,9 @@ def run(out_dir, channel, bringup, timeout=600.0):
     from rclpy.executors import SingleThreadedExecutor
     from trajectory_msgs.msg import JointTrajectory
 
-    from . import plots
-    from .geometry.loader import load_geometry
-    from .planning.export import read_plan
+    from .. import plots
+    from ..geometry.loader import load_geometry
+    from ..planning.export import read_plan
 
     share = pathlib.Path(sys.prefix) / "share" / "edm_planner" / "config"
     rclpy.init()
@@ -183,7 +183,7 @@ def run(out_dir, channel, bringup, timeout=600.0):
                               "Axis values along the certified path (cf. Huang Fig. 7)")
             g = load_geometry(share / "default_blisk.yaml")
             if clear is None:
-                from .interference.fast import FastChannelField
+                from ..interference.fast import FastChannelField
                 field = FastChannelField(g.blisk, cache_dir=os.path.expanduser("~/.cache/edm_planner"),
                                          cache_key=g.geometry_id)
                 clear = field.pose_clearances(export.poses, export.electrode_mesh.vertices, channel)[0]
