@@ -58,7 +58,8 @@ def system(tmp_path_factory, field_cache):
     ros.add(TrajectoryPlannerNode(context=ros.context, parameter_overrides=[Parameter("cache_dir", value=field_cache)]))
     exports = tmp_path_factory.mktemp("nc")
     ros.add(AxisBridgeNode(context=ros.context, parameter_overrides=[
-        Parameter("joint_states_topic", value="/test_joint_states"), Parameter("export_dir", value=str(exports))]))
+        Parameter("joint_states_topic", value="/test_joint_states"), Parameter("export_dir", value=str(exports)),
+        Parameter("plan_wait", value=1.0)]))
     # the same bridge on a machine whose X travel ends at 15 mm, serving under another name
     ros.add(AxisBridgeNode(context=ros.context, cli_args=["--ros-args", "-r", "execute_plan:=tight/execute_plan",
                                                           "-r", "__node:=axis_bridge_tight"],

@@ -37,6 +37,9 @@ joint_state_max_age : float
     A JointState older than this is not used for the start check [s].
 max_plans : int
     Plans kept (oldest dropped first).
+plan_wait : float
+    How long a request for an unknown plan id waits for it to arrive on ``plan`` [s]
+    (a plan published just before the request may still be on its way).
 export_dir : str
     When set, every timed plan (dry runs included: the way to get a program without moving
     the machine) is also written there as ``<plan_id>.nc`` (ISO, G93 inverse time) and
@@ -141,6 +144,7 @@ class AxisBridgeNode(Node):
         self.declare_parameter("start_tolerance_rotary", 0.001)
         self.declare_parameter("joint_state_max_age", 5.0)
         self.declare_parameter("max_plans", 50)
+        self.declare_parameter("plan_wait", 10.0)
         self.declare_parameter("export_dir", "")
         path = self.get_parameter("machine_file").value or _default_machine_file()
         self.machine = load_machine(path)   # a bad machine file stops the node at start, with the key named
@@ -149,6 +153,7 @@ class AxisBridgeNode(Node):
         self.plans = OrderedDict()
         self._joint_state = None            # (monotonic receipt time, {name: position})
         self._lock = threading.Lock()
+        self._arrived = threading.Condition(self._lock)     # notified when a plan is stored
         self.create_subscription(ChannelPlan, "plan", self.on_plan, LATCHED,
                                  callback_group=MutuallyExclusiveCallbackGroup())
         topic = self.get_parameter("joint_states_topic").value
@@ -162,11 +167,12 @@ class AxisBridgeNode(Node):
 
     def on_plan(self, msg):
         plan = _StoredPlan(msg)
-        with self._lock:
+        with self._arrived:
             self.plans[plan.plan_id] = plan
             self.plans.move_to_end(plan.plan_id)
             while len(self.plans) > int(self.get_parameter("max_plans").value):
                 self.plans.popitem(last=False)
+            self._arrived.notify_all()
         self.get_logger().info(f"plan {plan.plan_id}: channel {plan.channel}, {len(plan.samples)} samples")
 
     def on_joint_state(self, msg):
@@ -177,7 +183,10 @@ class AxisBridgeNode(Node):
         return answer(self, "ExecutePlan", self._execute, request, response)
 
     def _execute(self, request, response):
-        with self._lock:
+        # a plan published just before the request may still be on its way (or being read): wait a little
+        with self._arrived:
+            self._arrived.wait_for(lambda: request.plan_id in self.plans,
+                                   timeout=float(self.get_parameter("plan_wait").value))
             plan = self.plans.get(request.plan_id)
         if plan is None:
             raise EdmError(ErrorCode.UNKNOWN_ID, f"unknown plan id {request.plan_id!r}; plans seen on 'plan': "
