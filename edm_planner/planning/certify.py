@@ -1,20 +1,22 @@
 """Continuous certification of a fitted axis path (Huang IV.A, Liu 4.2, issue 4 item 6).
 
 The path is a C2 spline q(s) in machine-axis space, interpolated by the
-machine exactly as it is certified here. Any electrode vertex moves, for a
-change dq of the axes, by at most
+machine exactly as it is certified here. Any electrode vertex moves, per unit
+path parameter, by at most
 
-    |dX, dY, dZ| + R_A |dA| + L_C |dC| (+ L_B |dB|)
+    |o'| + |A'| |u| + |C'| L_C (+ |B'| L_B)
 
-(R_A the largest vertex radius about the blisk axis, L_C / L_B the largest
-lever about the C / B axis). The path is sampled so that this bound stays
-below the sample spacing between consecutive samples (the plan export's
-0.05 mm promise), and every interval between two samples is certified by the
-Lipschitz bound of ``interference.segment``: with slack lower bounds c_a, c_b
-at its ends and displacement bound D over it, the slack inside is at least
-``(c_a + c_b - D) / 2``. Intervals that do not pass are subdivided
-(``certify_segment``) and, below the smallest interval, reported with the
-first contact, its path parameter and the penetration bound.
+(o the electrode origin's path, u a vertex about the origin, L_C / L_B the
+levers of the C / B axes), bounded on each knot interval from the spline's
+first and second derivatives (``displacement_bounds``). Certification starts
+from the knots and halves every interval whose Lipschitz bound -- with slack
+lower bounds c_a, c_b at its ends and displacement bound D over it, the slack
+inside is at least ``(c_a + c_b - D) / 2`` per surface -- does not stay above
+the margins; a sample below its margin, or an interval that cannot be
+certified below the smallest length, is reported with its path parameter,
+the surface and the penetration bound. The plan's samples are placed
+separately (``sample``) so that no vertex moves more than the sample spacing
+(the plan export's 0.05 mm promise) between consecutive samples.
 
 Slack lower bounds come from the fast field (its value less its error bound);
 where that is not enough the vertices that can attain the minimum are solved

@@ -11,11 +11,12 @@ halved (Liu 4.2: shorten the step adaptively); below the smallest step the
 channel is reported infeasible with the furthest node, the blocking surface
 and its clearance.
 
-Methods: ``default`` (warm start from the previous increments, then a
-vectorised pattern search on Huang's objective), ``ga`` (Huang's binary GA on
-the same objective), ``max_min_distance`` (Ayesta 2016: maximise the smallest
-clearance) and ``max_free_distance`` (Kang 2018: maximise the free travel along
-the reference direction).
+Methods: ``default`` (sequential linear programming from the previous
+increments: raise the smallest slack up to a cushion, then stay closest to the
+previous node's increments, Huang's Objfun1), ``ga`` (Huang's binary GA on
+Huang's objective), ``max_min_distance`` (Ayesta 2016: the same LP maximising
+the smallest clearance) and ``max_free_distance`` (Kang 2018: pattern search
+for the longest free travel along the reference direction).
 """
 
 import logging
@@ -286,7 +287,7 @@ class ExitSearch:
         Linearise every near-critical point clearance in the free increments
         (forward differences on the fast field), then one LP (HiGHS): raise the
         smallest slack up to the cushion -- the slack the electrode has at its
-        machining pose -- and, among those increments, take the one closest to
+        machining pose plus ``cushion_extra`` -- and, among those increments, take the one closest to
         the previous node's (Huang's Objfun1). ``max_min_distance`` raises the
         smallest slack without a cap (Ayesta 2016). Re-linearise at the
         solution until the fast field confirms it feasible.
