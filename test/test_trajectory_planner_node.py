@@ -40,7 +40,8 @@ def system(tmp_path_factory, field_cache):
     exports = tmp_path_factory.mktemp("plans")
     ros.add(GeometryLoaderNode(context=ros.context))
     ros.add(TrajectoryPlannerNode(context=ros.context, parameter_overrides=[
-        Parameter("cache_dir", value=str(cache)), Parameter("export_dir", value=str(exports))]))
+        Parameter("cache_dir", value=str(cache)), Parameter("export_dir", value=str(exports)),
+        Parameter("unknown_geometry_wait", value=20.0)]))
     client = ros.add(Node("planner_client", context=ros.context))
     geometries, plans, progress = [], [], []
     ready = threading.Event()

@@ -21,6 +21,8 @@ export_dir : str
     Where ``write_export`` requests write plan exports ('' : ~/.local/share/edm_planner/plans).
 geometry_wait : float
     How long a request waits for a geometry still being prepared [s].
+unknown_geometry_wait : float
+    How long a request for a geometry id not seen yet waits for it on ``geometry`` [s].
 """
 
 import json
@@ -145,10 +147,12 @@ class TrajectoryPlannerNode(Node):
         self.declare_parameter("time_budget", 60.0)
         self.declare_parameter("export_dir", "")
         self.declare_parameter("geometry_wait", 120.0)
+        self.declare_parameter("unknown_geometry_wait", 5.0)
         self.declare_parameter("frame_id", "blisk")
         self.geometries = {}
         self.latest = None
         self._lock = threading.Lock()
+        self._arrived = threading.Condition(self._lock)      # notified when a geometry arrives
         self.create_subscription(BliskGeometry, "geometry", self.on_geometry, LATCHED,
                                  callback_group=MutuallyExclusiveCallbackGroup())
         self.plan_pub = self.create_publisher(ChannelPlan, "plan", LATCHED)
@@ -159,11 +163,12 @@ class TrajectoryPlannerNode(Node):
     # -- geometry ---------------------------------------------------------------------------
     def on_geometry(self, msg):
         gid = msg.summary.geometry_id
-        with self._lock:
+        with self._arrived:
             if gid in self.geometries:
                 return
             prepared = self.geometries[gid] = _Prepared()
             self.latest = gid
+            self._arrived.notify_all()
         threading.Thread(target=self._prepare, args=(gid, msg.model_json, prepared), daemon=True).start()
 
     def _prepare(self, gid, model_json, prepared):
@@ -187,8 +192,11 @@ class TrajectoryPlannerNode(Node):
             prepared.ready.set()
 
     def _geometry(self, gid):
-        gid = gid or self.latest
-        with self._lock:
+        # a geometry loaded just before the request may still be on its way on the latched topic
+        with self._arrived:
+            self._arrived.wait_for(lambda: (gid or self.latest) in self.geometries,
+                                   timeout=float(self.get_parameter("unknown_geometry_wait").value))
+            gid = gid or self.latest
             prepared = self.geometries.get(gid) if gid else None
         if prepared is None:
             raise EdmError(ErrorCode.UNKNOWN_ID,
