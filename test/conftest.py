@@ -45,3 +45,11 @@ def node_processes(tmp_path):
 def field_cache(tmp_path_factory):
     """One distance-field cache directory for the whole run: each geometry's field is built once."""
     return str(tmp_path_factory.mktemp("field_cache"))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def plan_store_of_this_run(tmp_path_factory):
+    """Nodes and the CLI keep plans in a store of this run, not in the user's (EDM_PLANNER_PLAN_STORE)."""
+    path = str(tmp_path_factory.mktemp("plan_store"))
+    os.environ["EDM_PLANNER_PLAN_STORE"] = path
+    return path

@@ -97,7 +97,7 @@ class NodeProcesses:
         cmd = [str(VENV_BIN / executable), *args]
         if params:
             cmd += ["--ros-args"] + [x for k, v in params.items() for x in ("-p", f"{k}:={v}")]
-        log = open(self.log_dir / f"{executable}.log", "w")
+        log = open(self.log_dir / f"{executable}.log", "a")     # a restarted node appends
         self.procs[executable] = (subprocess.Popen(
             cmd, env=ros_environment(), stdout=log, stderr=subprocess.STDOUT,
             start_new_session=True), log)
@@ -106,15 +106,19 @@ class NodeProcesses:
     def log(self, executable):
         return (self.log_dir / f"{executable}.log").read_text()
 
-    def stop(self):
-        for proc, log in self.procs.values():
+    def stop(self, *names):
+        """Stop the named processes (all without names); returns their exit codes by name."""
+        names = names or tuple(self.procs)
+        for name in names:
+            proc = self.procs[name][0]
             if proc.poll() is None:
                 proc.send_signal(signal.SIGINT)
-        for name, (proc, log) in self.procs.items():
+        for name in names:
+            proc, log = self.procs[name]
             try:
                 proc.wait(timeout=10)
             except subprocess.TimeoutExpired:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
             log.close()
-        return {name: proc.returncode for name, (proc, _) in self.procs.items()}
+        return {name: self.procs[name][0].returncode for name in names}

@@ -12,6 +12,7 @@ def test_demo_runs_end_to_end_and_writes_its_pictures(tmp_path):
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env["ROS_DOMAIN_ID"] = str((int(os.environ["ROS_DOMAIN_ID"]) + 101) % 232)   # away from the in-process tests
     env["HOME"] = str(tmp_path / "home")          # a fresh user: caches and plan store start empty
+    env.pop("EDM_PLANNER_PLAN_STORE", None)
     out = tmp_path / "demo"
     run = subprocess.run([sys.executable, "-m", "edm_planner.nodes.demo", "--out", str(out)], env=env,
                          capture_output=True, text=True, timeout=900)

@@ -44,6 +44,10 @@ export_dir : str
     When set, every timed plan (dry runs included: the way to get a program without moving
     the machine) is also written there as ``<plan_id>.nc`` (ISO, G93 inverse time) and
     ``<plan_id>.csv`` (timed axis samples); the response message names the files.
+plan_store : str
+    Directory of the persistent plan store the planner writes ('' : ~/.local/share/edm_planner/plan_store,
+    'none' : off). A plan id not seen on ``plan`` is looked up there first, so plans can be executed by id
+    after a restart of the bridge or the planner.
 """
 
 import math
@@ -66,6 +70,7 @@ from ..geometry.frames import rotation_about_x
 from ..machine.config import LINEAR, default_machine_path, load_machine
 from ..machine.nc import nc_program, trajectory_csv
 from ..machine.trajectory import plan_trajectory
+from ..planning.store import PlanStoreError, open_store
 from .conversions import error_code
 from .geometry_loader import LATCHED
 from .runtime import answer, spin_node
@@ -146,6 +151,13 @@ class AxisBridgeNode(Node):
         self.declare_parameter("max_plans", 50)
         self.declare_parameter("plan_wait", 10.0)
         self.declare_parameter("export_dir", "")
+        self.declare_parameter("plan_store", "")
+        self.store, self.store_error = None, ""
+        try:
+            self.store = open_store(self.get_parameter("plan_store").value)
+        except PlanStoreError as exc:   # plans from the topic still work; unknown ids say why
+            self.store_error = exc.message
+            self.get_logger().error(f"plan store not used: {exc.message}")
         path = self.get_parameter("machine_file").value or _default_machine_file()
         self.machine = load_machine(path)   # a bad machine file stops the node at start, with the key named
         self.get_logger().info(f"machine {self.machine.name!r} from {path}: joints "
@@ -184,13 +196,20 @@ class AxisBridgeNode(Node):
 
     def _execute(self, request, response):
         # a plan published just before the request may still be on its way (or being read): wait a little
-        with self._arrived:
-            self._arrived.wait_for(lambda: request.plan_id in self.plans,
-                                   timeout=float(self.get_parameter("plan_wait").value))
+        with self._lock:
             plan = self.plans.get(request.plan_id)
+        store_note = ""
+        if plan is None:       # made before this bridge started? the plan store has every certified plan
+            plan, store_note = self._from_store(request.plan_id)
+        if plan is None:       # published just before the request: may still be on its way
+            with self._arrived:
+                self._arrived.wait_for(lambda: request.plan_id in self.plans,
+                                       timeout=float(self.get_parameter("plan_wait").value))
+                plan = self.plans.get(request.plan_id)
         if plan is None:
-            raise EdmError(ErrorCode.UNKNOWN_ID, f"unknown plan id {request.plan_id!r}; plans seen on 'plan': "
-                                                 f"{list(self.plans)[-5:]}")
+            raise EdmError(ErrorCode.UNKNOWN_ID, f"unknown plan id {request.plan_id!r}: not in the plan store"
+                                                 f"{store_note} and not seen on 'plan' (latest "
+                                                 f"{list(self.plans)[-5:]})")
         if int(request.channel) != plan.channel:
             raise EdmError(ErrorCode.INVALID_REQUEST, f"plan {plan.plan_id} is for channel {plan.channel}, "
                                                       f"the request names channel {request.channel}")
@@ -221,6 +240,19 @@ class AxisBridgeNode(Node):
         response.error_code = error_code(ErrorCode.SUCCESS)
         response.message = summary
         self.get_logger().info(summary)
+
+    def _from_store(self, plan_id):
+        """(plan, '') from the plan store, or (None, why not) ."""
+        if self.store is None:
+            return None, f" ({self.store_error})" if self.store_error else " (no plan store configured)"
+        try:
+            plan = self.store.get(plan_id)
+        except PlanStoreError as exc:
+            self.get_logger().error(exc.message)
+            return None, f" ({exc.message})"
+        if plan is not None:
+            self.get_logger().info(f"plan {plan_id} read from the plan store {self.store.path}")
+        return plan, ""
 
     def _export(self, plan, arrays, directory):
         try:

@@ -23,6 +23,10 @@ geometry_wait : float
     How long a request waits for a geometry still being prepared [s].
 unknown_geometry_wait : float
     How long a request for a geometry id not seen yet waits for it on ``geometry`` [s].
+plan_store : str
+    Directory of the persistent plan store ('' : ~/.local/share/edm_planner/plan_store, 'none' : off).
+    A request equal to an earlier one (same geometry content, channel, electrode, settings) is answered
+    from the store at once; the axis bridge reads the same store.
 """
 
 import json
@@ -46,6 +50,7 @@ from ..planning.objective import Weights
 from ..planning.plan import PlanOptions
 from ..planning.planner import plan_channel
 from ..planning.search import SearchOptions
+from ..planning.store import PlanStoreError, open_store, plan_to_stored, request_key, stored_to_plan
 from .conversions import error_code, matrix_to_pose
 from .geometry_loader import LATCHED
 from .runtime import answer, spin_node
@@ -149,6 +154,13 @@ class TrajectoryPlannerNode(Node):
         self.declare_parameter("geometry_wait", 120.0)
         self.declare_parameter("unknown_geometry_wait", 5.0)
         self.declare_parameter("frame_id", "blisk")
+        self.declare_parameter("plan_store", "")
+        self.store, self.store_error = None, ""
+        try:
+            self.store = open_store(self.get_parameter("plan_store").value)
+        except PlanStoreError as exc:   # plan without the store, and say so in every answer
+            self.store_error = exc.message
+            self.get_logger().error(f"plan store not used: {exc.message}")
         self.geometries = {}
         self.latest = None
         self._lock = threading.Lock()
@@ -223,11 +235,17 @@ class TrajectoryPlannerNode(Node):
                                                    nodes=int(nodes), reference=float(reference),
                                                    message=message))
 
-        plan = plan_channel(geometry, int(request.channel), request.electrode_id, options, field=prepared.field,
-                            progress=progress, design=design)
+        key = request_key(geometry.geometry_id, request.channel, request.electrode_id, options, design)
+        plan, note = self._stored(key), ""
+        if plan is None:
+            plan = plan_channel(geometry, int(request.channel), request.electrode_id, options,
+                                field=prepared.field, progress=progress, design=design)
+            note = self._store(plan, key)
+        else:
+            progress("stored", 1.0, plan.metrics.node_count, 0.0, f"plan {plan.plan_id} from the plan store")
         response.success = plan.success
         response.error_code = error_code(plan.error_code)
-        response.message = plan.message
+        response.message = plan.message + note
         response.plan_id = plan.plan_id
         response.metrics = metrics_to_msg(plan.metrics)
         response.furthest_node = int(plan.furthest_node)
@@ -252,7 +270,36 @@ class TrajectoryPlannerNode(Node):
             electrode_id=plan.electrode_id, method=options.search.method,
             final_pose=[float(v) for v in plan.poses[-1].reshape(-1)], poses=response.poses,
             axis_path=response.axis_path, metrics=response.metrics))
-        self.get_logger().info(f"plan {plan.plan_id}: {plan.message}")
+        self.get_logger().info(f"plan {plan.plan_id}: {response.message}")
+
+    # -- the plan store ---------------------------------------------------------------------
+    def _stored(self, key):
+        """The stored plan of an equal earlier request, or None (also when the store cannot be read)."""
+        if self.store is None:
+            return None
+        try:
+            stored = self.store.find(key)
+        except PlanStoreError as exc:
+            self.get_logger().error(f"plan store: {exc.message}; planning anew")
+            return None
+        if stored is None:
+            return None
+        plan = stored_to_plan(stored)
+        plan.message = f"from the plan store (planned {stored.created}): {plan.message}"
+        return plan
+
+    def _store(self, plan, key):
+        """Keep a certified plan; returns a note for the answer when it could not be kept."""
+        if not plan.success:
+            return ""
+        if self.store is None:
+            return f"; not kept in the plan store: {self.store_error}" if self.store_error else ""
+        try:
+            self.store.put(plan_to_stored(plan), key)
+        except PlanStoreError as exc:
+            self.get_logger().error(exc.message)
+            return f"; not kept in the plan store: {exc.message}"
+        return ""
 
 
 def main(args=None):

@@ -128,3 +128,13 @@ class Plan:
     @property
     def success(self):
         return self.error_code == ErrorCode.SUCCESS
+
+
+def plan_options_from_dict(d):
+    """:class:`PlanOptions` from ``dataclasses.asdict`` of one (as stored with a plan)."""
+    from .objective import Weights
+
+    d = dict(d)
+    search = dict(d.pop("search"))
+    search["weights"] = Weights(**{k: tuple(v) for k, v in search["weights"].items()})
+    return PlanOptions(search=SearchOptions(**search), **d)

@@ -1,0 +1,371 @@
+"""Persistent plans: an SQLite file of certified plans, keyed by request and by plan id.
+
+Every node and the command line share one store directory (by default
+``$EDM_PLANNER_PLAN_STORE``, else ``~/.local/share/edm_planner/plan_store``), so a plan outlives the process that
+made it: a repeated PlanChannel is answered from the store at once, and the axis
+bridge finds a plan by id after a restart without the planner republishing it.
+
+A record keeps what re-serving and executing a plan need, bit for bit: the axis
+samples, the poses, the search nodes and the electrode mesh as ``.npy`` arrays,
+the rest as JSON, compressed together, with a SHA-256 of the record beside it.
+
+Keys
+----
+``plan_id``
+    The plan's own id (:func:`~edm_planner.planning.planner.plan_id_for`).
+``request_key``
+    A hash of what a request asked for: the geometry id (itself a SHA-256 of
+    the geometry's content), channel, electrode id, settings and electrode
+    design as requested. Equal requests find the same plan.
+
+Safety
+------
+Nothing is ever overwritten or deleted behind the user's back. A file that is
+not SQLite, an SQLite file of another application, a newer schema, a failed
+integrity check or a record whose checksum does not match raise
+:class:`PlanStoreError` (``FILE_ERROR``) naming the file and what to do; the
+file is left as it was. Writes are transactions (WAL journal), so a crash
+leaves either the old or the new record, and several processes may share the
+store.
+"""
+
+import datetime
+import hashlib
+import io
+import json
+import logging
+import os
+import pathlib
+import sqlite3
+import zlib
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .. import __version__
+from ..errors import EdmError, ErrorCode
+from ..interference import SURFACES
+
+log = logging.getLogger(__name__)
+
+APPLICATION = "edm_planner.plan_store"
+SCHEMA = 1
+FILE_NAME = "plans.sqlite"
+#: environment variable naming the store directory of nodes and the command line when not told otherwise
+ENV_VAR = "EDM_PLANNER_PLAN_STORE"
+#: SQLite's application_id header field, so ``file`` and other tools can tell the file apart ("EDMP")
+APPLICATION_ID = 0x45444D50
+
+_SCHEMA_SQL = """
+CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE plans (
+    plan_id      TEXT PRIMARY KEY,
+    request_key  TEXT,
+    kind         TEXT NOT NULL,
+    geometry_id  TEXT NOT NULL,
+    channel      INTEGER NOT NULL,
+    electrode_id TEXT NOT NULL,
+    method       TEXT NOT NULL,
+    created      TEXT NOT NULL,
+    version      TEXT NOT NULL,
+    sha256       TEXT NOT NULL,
+    record       BLOB NOT NULL
+);
+CREATE INDEX plans_request ON plans (request_key);
+"""
+
+
+class PlanStoreError(EdmError):
+    """The plan store cannot be used (FILE_ERROR); the message names the file and the way out."""
+
+    def __init__(self, message):
+        super().__init__(ErrorCode.FILE_ERROR, message)
+
+
+def request_key(geometry_id, channel, electrode_id, settings, design=None):
+    """Key of a planning request: equal requests (same geometry content and settings) give equal keys.
+
+    Parameters
+    ----------
+    geometry_id : str
+        The geometry's content hash.
+    channel : int
+    electrode_id : str
+        As requested ('' for the first electrode).
+    settings : dataclass or dict
+        The request's options (e.g. :class:`~edm_planner.planning.plan.PlanOptions`).
+    design : dataclass or dict, optional
+        Electrode design overrides.
+    """
+    def plain(x):
+        return None if x is None else (asdict(x) if hasattr(x, "__dataclass_fields__") else x)
+
+    doc = json.dumps([geometry_id, int(channel), electrode_id, plain(settings), plain(design)],
+                     sort_keys=True, default=str)
+    return hashlib.sha256(doc.encode()).hexdigest()
+
+
+@dataclass
+class StoredPlan:
+    """A plan as stored: what the bridge needs for every kind, and the rest in ``meta``/``arrays``.
+
+    Attributes
+    ----------
+    plan_id, geometry_id, electrode_id, method : str
+    kind : str
+        "channel" (an EDM feed plan) or "roughing" (a plunge-roughing plan).
+    channel : int
+    axis_names : tuple of str
+    samples : (N, k) float
+        Untimed axis values in feed order [mm, rad].
+    final_pose : (4, 4) float
+        Reference pose of the axis values (planner convention, channel 0) [mm].
+    poses : (N, 4, 4) float
+        Tool/electrode frame -> W at each sample, in the plan's channel [mm].
+    meta : dict
+        JSON-safe rest (message, metrics, settings, ...).
+    arrays : dict of str -> ndarray
+        Further arrays (nodes, electrode mesh, ...).
+    created, version : str
+    """
+
+    plan_id: str
+    kind: str
+    geometry_id: str
+    channel: int
+    electrode_id: str
+    method: str
+    axis_names: tuple
+    samples: np.ndarray
+    final_pose: np.ndarray
+    poses: np.ndarray
+    meta: dict = field(default_factory=dict)
+    arrays: dict = field(default_factory=dict)
+    created: str = ""
+    version: str = __version__
+
+
+def _pack(stored):
+    arrays = dict(stored.arrays, samples=stored.samples, final_pose=stored.final_pose, poses=stored.poses)
+    buf = io.BytesIO()
+    np.savez(buf, **{k: np.asarray(v) for k, v in arrays.items()})
+    head = {"plan_id": stored.plan_id, "kind": stored.kind, "geometry_id": stored.geometry_id,
+            "channel": int(stored.channel), "electrode_id": stored.electrode_id, "method": stored.method,
+            "axis_names": list(stored.axis_names), "meta": stored.meta, "created": stored.created,
+            "version": stored.version}
+    head_bytes = json.dumps(head, sort_keys=True, allow_nan=True).encode()
+    raw = len(head_bytes).to_bytes(8, "little") + head_bytes + buf.getvalue()
+    return zlib.compress(raw, 6)
+
+
+def _unpack(blob):
+    raw = zlib.decompress(blob)
+    n = int.from_bytes(raw[:8], "little")
+    head = json.loads(raw[8:8 + n].decode())
+    with np.load(io.BytesIO(raw[8 + n:]), allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    return StoredPlan(plan_id=head["plan_id"], kind=head["kind"], geometry_id=head["geometry_id"],
+                      channel=int(head["channel"]), electrode_id=head["electrode_id"], method=head["method"],
+                      axis_names=tuple(head["axis_names"]), samples=arrays.pop("samples"),
+                      final_pose=arrays.pop("final_pose"), poses=arrays.pop("poses"), meta=head["meta"],
+                      arrays=arrays, created=head["created"], version=head["version"])
+
+
+class PlanStore:
+    """The plans of one directory (``<directory>/plans.sqlite``, created on first use).
+
+    Parameters
+    ----------
+    directory : path
+        Created if missing.
+
+    Raises
+    ------
+    PlanStoreError
+        The directory cannot be created, or the file is not a plan store of this
+        schema or fails SQLite's integrity check. The file is not touched.
+    """
+
+    def __init__(self, directory):
+        self.directory = pathlib.Path(directory).expanduser()
+        self.path = self.directory / FILE_NAME
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise PlanStoreError(f"plan store directory {self.directory}: {exc}") from None
+        self._check_or_create()
+
+    def __repr__(self):
+        return f"PlanStore({str(self.directory)!r})"
+
+    # -- the file ---------------------------------------------------------------------------
+    def _connect(self):
+        try:
+            con = sqlite3.connect(self.path, timeout=30.0, isolation_level=None)
+        except sqlite3.Error as exc:
+            raise PlanStoreError(f"cannot open the plan store {self.path}: {exc}") from None
+        return con
+
+    def _refuse(self, why):
+        raise PlanStoreError(f"{self.path} {why}; it was left untouched: move it away or point the plan "
+                             f"store to another directory")
+
+    def _check_or_create(self):
+        fresh = not self.path.exists() or self.path.stat().st_size == 0
+        con = self._connect()
+        try:
+            if fresh:
+                con.execute("PRAGMA journal_mode=WAL")
+                con.execute(f"PRAGMA application_id={APPLICATION_ID}")
+                con.execute("BEGIN IMMEDIATE")
+                if not con.execute("SELECT name FROM sqlite_master").fetchall():   # nobody was faster
+                    for statement in filter(str.strip, _SCHEMA_SQL.split(";")):
+                        con.execute(statement)
+                    con.executemany("INSERT INTO meta VALUES (?, ?)",
+                                    [("application", APPLICATION), ("schema", str(SCHEMA)),
+                                     ("created_by", f"edm_planner {__version__}")])
+                con.execute("COMMIT")
+            self._validate(con)
+        except sqlite3.DatabaseError as exc:
+            self._refuse(f"is not a usable SQLite database ({exc})")
+        finally:
+            con.close()
+
+    def _validate(self, con):
+        tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        if "meta" not in tables:
+            self._refuse(f"is an SQLite database of another application (tables: {sorted(tables) or 'none'})")
+        meta = dict(con.execute("SELECT key, value FROM meta").fetchall())
+        if meta.get("application") != APPLICATION:
+            self._refuse(f"is an SQLite database of another application (application "
+                         f"{meta.get('application')!r})")
+        if meta.get("schema") != str(SCHEMA):
+            self._refuse(f"has plan store schema {meta.get('schema')!r}; this edm_planner {__version__} reads "
+                         f"schema {SCHEMA}")
+        if "plans" not in tables:
+            self._refuse("has no plans table")
+        check = con.execute("PRAGMA quick_check").fetchall()
+        if check != [("ok",)]:
+            self._refuse(f"fails SQLite's integrity check: {'; '.join(str(r[0]) for r in check[:3])}")
+
+    # -- records ----------------------------------------------------------------------------
+    def put(self, stored, key=None):
+        """Store a plan (replacing a record of the same plan id) under its id and ``key``.
+
+        Raises
+        ------
+        PlanStoreError
+            The write failed; nothing was changed.
+        """
+        stored.created = stored.created or datetime.datetime.now(datetime.timezone.utc).isoformat(
+            timespec="seconds")
+        blob = _pack(stored)
+        row = (stored.plan_id, key, stored.kind, stored.geometry_id, int(stored.channel), stored.electrode_id,
+               stored.method, stored.created, stored.version, hashlib.sha256(blob).hexdigest(), blob)
+        con = self._connect()
+        try:
+            with con:
+                con.execute("BEGIN IMMEDIATE")
+                con.execute("INSERT OR REPLACE INTO plans VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", row)
+        except sqlite3.Error as exc:
+            raise PlanStoreError(f"cannot store plan {stored.plan_id} in {self.path}: {exc}") from None
+        finally:
+            con.close()
+        log.info("stored plan %s in %s", stored.plan_id, self.path)
+
+    def _one(self, where, value):
+        con = self._connect()
+        try:
+            row = con.execute(f"SELECT plan_id, sha256, record FROM plans WHERE {where} = ? "
+                              f"ORDER BY created DESC LIMIT 1", (value,)).fetchone()
+        except sqlite3.Error as exc:
+            raise PlanStoreError(f"cannot read the plan store {self.path}: {exc}") from None
+        finally:
+            con.close()
+        if row is None:
+            return None
+        plan_id, digest, blob = row
+        if not isinstance(blob, bytes) or hashlib.sha256(blob).hexdigest() != digest:
+            raise PlanStoreError(f"plan {plan_id} in {self.path} is corrupt (its checksum does not match); the "
+                                 f"record was left as it is")
+        try:
+            stored = _unpack(blob)
+        except Exception as exc:  # a record we wrote and checksummed but cannot read: say which
+            raise PlanStoreError(f"plan {plan_id} in {self.path} cannot be read: {exc!r}") from None
+        if stored.plan_id != plan_id:
+            raise PlanStoreError(f"plan {plan_id} in {self.path} holds plan {stored.plan_id}: the store is "
+                                 f"inconsistent")
+        return stored
+
+    def get(self, plan_id):
+        """The stored plan of ``plan_id``, or None."""
+        return self._one("plan_id", plan_id)
+
+    def find(self, key):
+        """The plan stored for request ``key``, or None."""
+        return self._one("request_key", key)
+
+    def list(self, limit=None):
+        """Summary rows (plan_id, kind, geometry_id, channel, electrode_id, method, created), newest first."""
+        con = self._connect()
+        try:
+            sql = ("SELECT plan_id, kind, geometry_id, channel, electrode_id, method, created FROM plans "
+                   "ORDER BY created DESC")
+            rows = con.execute(sql + (f" LIMIT {int(limit)}" if limit else "")).fetchall()
+        except sqlite3.Error as exc:
+            raise PlanStoreError(f"cannot read the plan store {self.path}: {exc}") from None
+        finally:
+            con.close()
+        keys = ("plan_id", "kind", "geometry_id", "channel", "electrode_id", "method", "created")
+        return [dict(zip(keys, r)) for r in rows]
+
+
+def default_store_dir():
+    """``$EDM_PLANNER_PLAN_STORE``, else ``~/.local/share/edm_planner/plan_store``."""
+    return os.environ.get(ENV_VAR) or os.path.join(os.path.expanduser("~"), ".local", "share", "edm_planner",
+                                                   "plan_store")
+
+
+def open_store(directory):
+    """A :class:`PlanStore` of ``directory`` ('' -> :func:`default_store_dir`), or None for ``"none"``."""
+    if directory == "none":
+        return None
+    return PlanStore(directory or default_store_dir())
+
+
+# -- channel plans ----------------------------------------------------------------------------
+
+def plan_to_stored(plan):
+    """A certified :class:`~edm_planner.planning.plan.Plan` as a record (kind "channel")."""
+    mesh = plan.electrode_mesh
+    return StoredPlan(
+        plan_id=plan.plan_id, kind="channel", geometry_id=plan.geometry_id, channel=int(plan.channel),
+        electrode_id=plan.electrode_id, method=plan.options.search.method, axis_names=tuple(plan.axis_names),
+        samples=np.asarray(plan.samples, dtype=np.float64), final_pose=np.asarray(plan.final_pose, np.float64),
+        poses=np.asarray(plan.poses, dtype=np.float64),
+        meta={"error_code": int(plan.error_code), "message": plan.message, "options": asdict(plan.options),
+              "metrics": plan.metrics.to_dict()},
+        arrays={"nodes": np.asarray(plan.nodes, dtype=np.float64),
+                "electrode_vertices": np.asarray(mesh.vertices, dtype=np.float64),
+                "electrode_faces": np.asarray(mesh.faces, dtype=np.int64)})
+
+
+def stored_to_plan(stored):
+    """The :class:`~edm_planner.planning.plan.Plan` of a "channel" record, arrays bit for bit."""
+    import trimesh
+
+    from .plan import Plan, PlanMetrics, plan_options_from_dict
+
+    if stored.kind != "channel":
+        raise PlanStoreError(f"plan {stored.plan_id} is a {stored.kind} plan, not a channel plan")
+    m = dict(stored.meta["metrics"])
+    m["min_clearance"] = tuple(float(m["min_clearance"][s]) for s in SURFACES)
+    for k in ("axis_names", "smoothness", "sharp_points"):
+        m[k] = tuple(m[k])
+    mesh = trimesh.Trimesh(stored.arrays["electrode_vertices"], stored.arrays["electrode_faces"], process=False)
+    return Plan(plan_id=stored.plan_id, error_code=ErrorCode(stored.meta["error_code"]),
+                message=stored.meta["message"], geometry_id=stored.geometry_id, channel=stored.channel,
+                electrode_id=stored.electrode_id, electrode_mesh=mesh, final_pose=stored.final_pose,
+                options=plan_options_from_dict(stored.meta["options"]), axis_names=stored.axis_names,
+                samples=stored.samples, poses=stored.poses, nodes=stored.arrays["nodes"],
+                metrics=PlanMetrics(**m))
