@@ -1,8 +1,13 @@
 """``edm-plan``: the command line of the planner (no ROS needed).
 
 ``edm-plan plan --geometry FILE.yaml --channel K --out DIR`` plans one channel
-and writes the plan export (:mod:`edm_planner.planning.export`). Progress goes
-to stderr, a short summary to stdout. Exit status: 0 on success, otherwise the
+and writes the plan export (:mod:`edm_planner.planning.export`); the plan is
+kept in the plan store shared with the nodes (:mod:`edm_planner.planning.store`)
+and an equal request is answered from there. ``edm-plan export`` times a plan
+(an export directory or a plan id in the store) on a machine and writes the NC
+program and the timed CSV; ``edm-plan store list`` shows the stored plans.
+Progress goes to stderr (a bar on a terminal, lines otherwise), a short summary
+to stdout. Exit status: 0 on success, otherwise the
 :class:`~edm_planner.errors.ErrorCode` value (1 .. 8; argparse's own usage
 errors exit with 2), with ``error: NAME: message`` on stderr. A failed plan is
 still written (error code, message, where the search stopped) for diagnosis;
@@ -17,6 +22,7 @@ import time
 
 from .errors import EdmError, ErrorCode
 from .interference import SURFACES
+from .planning.store import open_store
 
 DEFAULT_CACHE = os.path.join(os.path.expanduser("~"), ".cache", "edm_planner")
 
@@ -54,6 +60,9 @@ def _parser():
     e.add_argument("--split", choices=("none", "left_right", "front_rear"))
     e.add_argument("--split-overlap", type=float, metavar="MM")
     q.add_argument("--cache-dir", default=DEFAULT_CACHE, metavar="DIR", help="distance field cache")
+    _store_argument(q)
+    q.add_argument("--replan", action="store_true", help="plan anew even if the store has the plan of this request")
+    _progress_argument(q)
     q.add_argument("-v", "--verbose", action="store_true", help="log the planner's steps to stderr")
     g = sub.add_parser("geometry", help="validate a geometry file or show its figures")
     g.add_argument("action", choices=("validate", "info"))
@@ -70,7 +79,32 @@ def _parser():
     t.add_argument("--out", metavar="DIR", help="where the pictures go (default: the plan directory)")
     t.add_argument("-v", "--verbose", action="store_true")
     g.add_argument("-v", "--verbose", action="store_true")
+    x = sub.add_parser("export", help="time a plan on a machine and write the NC program and the timed CSV",
+                       description="Time a certified plan (toppra, the machine's velocity, acceleration and jerk "
+                                   "limits) and write <plan_id>.nc (ISO G21 G90 G93 G01, inverse-time feed) and "
+                                   "<plan_id>.csv (time, then position, velocity, acceleration per axis).")
+    x.add_argument("source", metavar="PLAN", help="a plan export directory, or a plan id in the plan store")
+    x.add_argument("--machine", metavar="FILE.yaml", help="machine file (default: config/machine.yaml)")
+    x.add_argument("--out", metavar="DIR", help="where the files go (default: the export directory, or .)")
+    x.add_argument("--format", choices=("nc", "csv", "both"), default="both")
+    _store_argument(x)
+    x.add_argument("-v", "--verbose", action="store_true")
+    s_ = sub.add_parser("store", help="the stored plans", description="List the plans of the plan store.")
+    s_.add_argument("action", choices=("list",))
+    _store_argument(s_)
+    s_.add_argument("-v", "--verbose", action="store_true")
     return p
+
+
+def _store_argument(parser):
+    parser.add_argument("--store", default="", metavar="DIR",
+                        help="plan store directory shared with the nodes (default: $EDM_PLANNER_PLAN_STORE or "
+                             "~/.local/share/edm_planner/plan_store; 'none': do not use one)")
+
+
+def _progress_argument(parser):
+    parser.add_argument("--progress", choices=("auto", "bar", "lines", "none"), default="auto",
+                        help="progress on stderr: a bar on a terminal, lines otherwise (auto)")
 
 
 def _geometry(args, out):
@@ -131,18 +165,45 @@ def _plot(args, out):
 
 
 class _Progress:
-    """Progress lines on stderr: one per stage change, message, or 10 % advance."""
+    """Progress on stderr: a tqdm bar per stage, or lines (one per stage change, message or 10 % advance).
 
-    def __init__(self, stream):
-        self.stream, self.t0, self.last = stream, time.perf_counter(), (None, -1.0)
+    ``mode`` "auto" draws bars on a terminal and lines otherwise (logs, CI); "none" is silent.
+    """
+
+    def __init__(self, stream, mode="lines"):
+        if mode == "auto":
+            mode = "bar" if getattr(stream, "isatty", lambda: False)() else "lines"
+        self.stream, self.mode, self.t0, self.last = stream, mode, time.perf_counter(), (None, -1.0)
+        self.bar = None
 
     def __call__(self, stage, fraction, nodes, reference_mm, message):
+        if self.mode == "none":
+            return
+        if self.mode == "bar":
+            return self._bar(stage, fraction, nodes, reference_mm, message)
         stage_then, fraction_then = self.last
         if stage == stage_then and not message and fraction < fraction_then + 0.1:
             return
         self.last = (stage, fraction)
         print(f"[{time.perf_counter() - self.t0:6.1f} s] {stage:<8} {100 * fraction:5.1f} %  nodes {nodes:5d}  "
               f"reference {reference_mm:7.2f} mm  {message}".rstrip(), file=self.stream, flush=True)
+
+    def _bar(self, stage, fraction, nodes, reference_mm, message):
+        from tqdm import tqdm
+
+        if self.bar is None or self.bar.desc != stage:
+            self.close()
+            self.bar = tqdm(total=100, desc=stage, file=self.stream, unit="%", dynamic_ncols=True,
+                            bar_format="{desc:<8} {percentage:5.1f}%|{bar}| {elapsed}{postfix}")
+        self.bar.n = round(100 * min(max(fraction, 0.0), 1.0), 1)
+        self.bar.set_postfix_str(f"nodes {nodes}, reference {reference_mm:.2f} mm {message}".rstrip(),
+                                 refresh=False)
+        self.bar.refresh()
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
 
 
 def _design(args, base):
@@ -156,6 +217,7 @@ def _design(args, base):
 
 def _plan(args, out, err):
     from .geometry.loader import load_geometry
+    from .planning.store import plan_to_stored, request_key, stored_to_plan
     from .planning.export import write_plan
     from .planning.plan import PlanOptions
     from .planning.planner import plan_channel
@@ -168,7 +230,7 @@ def _plan(args, out, err):
             seed=args.seed, time_budget=args.time_budget), size_electrode=args.size_electrode)
     except ValueError as exc:
         raise EdmError(ErrorCode.INVALID_REQUEST, str(exc)) from None
-    progress = _Progress(err)
+    progress = _Progress(err, args.progress)
     progress("load", 0.0, 0, 0.0, args.geometry)
     geometry = load_geometry(args.geometry)
     if not 0 <= args.channel < geometry.blisk.blade_count:
@@ -178,10 +240,21 @@ def _plan(args, out, err):
         os.makedirs(args.cache_dir, exist_ok=True)
     except OSError as exc:
         raise EdmError(ErrorCode.FILE_ERROR, f"--cache-dir {args.cache_dir}: {exc}") from None
-    plan = plan_channel(geometry, args.channel, args.electrode, options, progress=progress,
-                        cache_dir=args.cache_dir, design=_design(args, geometry.design))
+    design = _design(args, geometry.design)
+    store = open_store(args.store)
+    key = request_key(geometry.geometry_id, args.channel, args.electrode, options, design)
+    stored = None if (store is None or args.replan) else store.find(key)
+    if stored is not None:
+        plan = stored_to_plan(stored)
+        progress("stored", 1.0, plan.metrics.node_count, 0.0, f"plan {plan.plan_id} from {store.path}")
+    else:
+        plan = plan_channel(geometry, args.channel, args.electrode, options, progress=progress,
+                            cache_dir=args.cache_dir, design=design)
+        if plan.success and store is not None:
+            store.put(plan_to_stored(plan), key)
     path = write_plan(plan, args.out, geometry.blisk)
     progress("export", 1.0, plan.metrics.node_count, 0.0, str(path.parent))
+    progress.close()
     if not plan.success:
         raise EdmError(plan.error_code, f"{plan.message} (furthest node {plan.furthest_node}, "
                                         f"{plan.furthest_reference:.3f} mm); diagnostics written to {path.parent}")
@@ -192,7 +265,74 @@ def _plan(args, out, err):
           f"path {m.path_length:.2f} mm, planned in {m.planning_time:.1f} s\n"
           f"min clearance [mm]: {clear}\n"
           f"circumferential reduction {m.circumferential_reduction:.4f} rad\n"
-          f"written to {path.parent}", file=out)
+          f"written to {path.parent}" + (f"\nfrom the plan store {store.path} (planned {stored.created}; "
+                                         f"--replan plans anew)" if stored is not None else
+                                         f"\nkept in the plan store {store.path}" if store is not None else ""),
+          file=out)
+    return 0
+
+
+def _plan_source(source, store_dir):
+    """(plan id, geometry id, channel, electrode id, axis names, samples, channel-0 final pose) of a plan."""
+    import pathlib
+
+    from .planning.export import read_plan
+
+    if pathlib.Path(source).is_dir():
+        p = read_plan(source)
+        return (p.doc["plan_id"], p.geometry_id, p.channel, p.doc.get("electrode_id", ""), p.axis_names, p.axes,
+                p.final_pose)
+    store = open_store(store_dir)
+    stored = store.get(source) if store is not None else None
+    if stored is None:
+        raise EdmError(ErrorCode.UNKNOWN_ID, f"{source!r} is neither a plan export directory nor a plan id in the "
+                                             f"plan store {store.path if store else '(none)'}; "
+                                             f"`edm-plan store list` shows the stored plans")
+    return (stored.plan_id, stored.geometry_id, stored.channel, stored.electrode_id, stored.axis_names,
+            stored.samples, stored.final_pose)
+
+
+def _export(args, out):
+    import pathlib
+
+    from .machine.config import default_machine_path, load_machine
+    from .machine.nc import nc_program, trajectory_csv
+    from .machine.trajectory import plan_trajectory
+
+    plan_id, geometry_id, channel, electrode_id, names, samples, final_pose = _plan_source(args.source, args.store)
+    machine_file = args.machine or str(default_machine_path())
+    machine = load_machine(machine_file)
+    arrays = plan_trajectory(samples, names, machine, final_pose=final_pose)
+    where = pathlib.Path(args.out or (args.source if pathlib.Path(args.source).is_dir() else "."))
+    files = []
+    try:
+        where.mkdir(parents=True, exist_ok=True)
+        if args.format in ("nc", "both"):
+            files.append(where / f"{plan_id}.nc")
+            files[-1].write_text(nc_program(arrays, plan_id, geometry_id, channel, electrode_id))
+        if args.format in ("csv", "both"):
+            files.append(where / f"{plan_id}.csv")
+            files[-1].write_text(trajectory_csv(arrays))
+    except OSError as exc:
+        raise EdmError(ErrorCode.FILE_ERROR, f"cannot write to {where}: {exc}") from None
+    timed = arrays.timed
+    peaks = ", ".join(f"{a} {v:.4g}" for a, v in zip(arrays.axis_names, timed.peak_velocity))
+    print(f"plan {plan_id} on machine {machine.name!r} ({machine_file}): {len(arrays.times)} points, "
+          f"{arrays.duration:.3f} s; peak velocity [mm/s, rad/s]: {peaks}", file=out)
+    for f in files:
+        print(f"wrote {f}", file=out)
+    return 0
+
+
+def _store(args, out):
+    store = open_store(args.store)
+    if store is None:
+        raise EdmError(ErrorCode.INVALID_REQUEST, "--store none: there is no store to list")
+    rows = store.list()
+    print(f"{len(rows)} plan(s) in {store.path}", file=out)
+    for r in rows:
+        print(f"{r['plan_id']}  {r['kind']:<8} geometry {r['geometry_id'][:12]}  channel {r['channel']:3d}  "
+              f"electrode {r['electrode_id'] or '-':<8} {r['method']:<18} {r['created']}", file=out)
     return 0
 
 
@@ -210,6 +350,10 @@ def main(argv=None, out=None, err=None):
             return _check(args, out)
         if args.command == "plot":
             return _plot(args, out)
+        if args.command == "export":
+            return _export(args, out)
+        if args.command == "store":
+            return _store(args, out)
         return _plan(args, out, err)
     except EdmError as exc:
         print(f"error: {exc.code.name}: {exc.message}", file=err)

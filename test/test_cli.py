@@ -92,3 +92,56 @@ def test_failures_exit_with_their_error_code(setup, tmp_path):
     rc, _, err = _run(["plan", "--geometry", str(yaml), "--channel", "0", "--out", str(tmp_path / "i"),
                        "--step", "-1"])
     assert rc == ErrorCode.INVALID_REQUEST and "step must be a positive number" in err
+
+
+def test_plan_is_kept_in_the_store_and_exported_to_nc_and_csv(setup, tmp_path):
+    """plan -> store -> the same request from the store; export by id and by directory agree; NC reads back."""
+    from edm_planner.machine.nc import parse_nc
+
+    yaml, cache, _ = setup
+    store = str(tmp_path / "store")
+    argv = ["plan", "--geometry", str(yaml), "--channel", "5", "--cache-dir", cache, "--store", store] + REAR
+    rc, out, err = _run(argv + ["--out", str(tmp_path / "a")])
+    assert rc == 0, err
+    assert "kept in the plan store" in out
+    plan_id = out.split("plan ")[1].split(":")[0]
+    rc, out, err = _run(argv + ["--out", str(tmp_path / "b")])
+    assert rc == 0 and "from the plan store" in out and "stored" in err and "search" not in err
+    a, b = read_plan(tmp_path / "a"), read_plan(tmp_path / "b")
+    np.testing.assert_array_equal(a.axes, b.axes)
+    rc, out, err = _run(["store", "list", "--store", store])
+    assert rc == 0 and "1 plan(s)" in out and plan_id in out and "channel   5" in out
+    # export by id from the store and from the export directory: the same program
+    rc, out, err = _run(["export", plan_id, "--store", store, "--out", str(tmp_path / "nc")])
+    assert rc == 0, err
+    assert "peak velocity" in out
+    rc, out, err = _run(["export", str(tmp_path / "a")])
+    assert rc == 0, err
+    by_id = (tmp_path / "nc" / f"{plan_id}.nc").read_text()
+    assert by_id == (tmp_path / "a" / f"{plan_id}.nc").read_text()
+    nc = parse_nc(by_id)
+    assert nc["plan_id"] == plan_id and nc["axis_names"] == ("X", "Y", "Z", "A", "C")
+    csv = np.loadtxt(tmp_path / "nc" / f"{plan_id}.csv", delimiter=",", skiprows=1)
+    np.testing.assert_allclose(nc["times"], csv[:, 0], atol=1e-3)
+    # the program ends at the machining pose of channel 5: joint A = 5 pitches (degrees in the NC text)
+    g = load_geometry(yaml)
+    assert csv[-1, 1 + 3 * 3] == pytest.approx(5 * g.blisk.pitch, abs=1e-9)
+    np.testing.assert_allclose(nc["positions"][-1, 3], 5 * g.blisk.pitch, atol=1e-6)
+    assert "(UNITS X=MM" in by_id and "G93" in by_id
+    # --replan plans anew (progress of the search) and finds the same plan
+    rc, out, err = _run(argv + ["--out", str(tmp_path / "c"), "--replan", "--progress", "bar"])
+    assert rc == 0 and f"plan {plan_id}" in out and "search" in err and "%|" in err   # a tqdm bar
+
+
+def test_export_and_store_errors(setup, tmp_path):
+    rc, _, err = _run(["export", "0123456789abcdef", "--store", str(tmp_path / "empty")])
+    assert rc == ErrorCode.UNKNOWN_ID and "neither a plan export directory nor a plan id" in err
+    (tmp_path / "foreign").mkdir()
+    (tmp_path / "foreign" / "plans.sqlite").write_bytes(b"not a database" * 100)
+    rc, _, err = _run(["store", "list", "--store", str(tmp_path / "foreign")])
+    assert rc == ErrorCode.FILE_ERROR and "not a usable SQLite database" in err and "left untouched" in err
+    assert (tmp_path / "foreign" / "plans.sqlite").read_bytes() == b"not a database" * 100
+    rc, _, err = _run(["export", str(tmp_path), "--store", "none"])       # a directory without plan.json
+    assert rc == ErrorCode.FILE_ERROR, err
+    rc, _, err = _run(["store", "list", "--store", "none"])
+    assert rc == ErrorCode.INVALID_REQUEST
