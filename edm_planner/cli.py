@@ -73,6 +73,7 @@ def _parser():
     c.add_argument("plan_dir", metavar="DIR")
     c.add_argument("--geometry", required=True, metavar="FILE.yaml", help="the geometry the plan was made for")
     c.add_argument("--threshold", type=float, default=0.0, metavar="MM", help="smallest clearance accepted")
+    _progress_argument(c)
     c.add_argument("-v", "--verbose", action="store_true")
     t = sub.add_parser("plot", help="pictures of an exported plan: axis curves and the channel view")
     t.add_argument("plan_dir", metavar="DIR")
@@ -124,7 +125,7 @@ def _geometry(args, out):
     return 0
 
 
-def _check(args, out):
+def _check(args, out, err):
     from .geometry.loader import load_geometry
     from .planning.export import read_plan, verify_exported_plan
 
@@ -133,8 +134,10 @@ def _check(args, out):
     if plan.geometry_id != geometry.geometry_id:
         raise EdmError(ErrorCode.INVALID_REQUEST, f"the plan was made for geometry {plan.geometry_id[:12]}, "
                                                   f"{args.geometry} is {geometry.geometry_id[:12]}")
+    progress = _Progress(err, args.progress)
     check = verify_exported_plan(args.plan_dir, geometry.blisk, threshold=args.threshold,
-                                 geometry_id=geometry.geometry_id)
+                                 geometry_id=geometry.geometry_id, progress=progress)
+    progress.close()
     clear = ", ".join(f"{s} {v:.4f}" for s, v in check.min_clearance.items())
     print(f"min clearance [mm]: {clear}\nlargest vertex step {check.max_vertex_step:.4f} mm; "
           f"{check.exact_evaluations} exact evaluations in {check.elapsed:.1f} s", file=out)
@@ -185,8 +188,15 @@ class _Progress:
         if stage == stage_then and not message and fraction < fraction_then + 0.1:
             return
         self.last = (stage, fraction)
-        print(f"[{time.perf_counter() - self.t0:6.1f} s] {stage:<8} {100 * fraction:5.1f} %  nodes {nodes:5d}  "
-              f"reference {reference_mm:7.2f} mm  {message}".rstrip(), file=self.stream, flush=True)
+        print(f"[{time.perf_counter() - self.t0:6.1f} s] {stage:<8} {100 * fraction:5.1f} %  "
+              f"{self._detail(nodes, reference_mm, message)}".rstrip(), file=self.stream, flush=True)
+
+    @staticmethod
+    def _detail(nodes, reference_mm, message):
+        """What a stage reports: search nodes and distance along the reference when it has them."""
+        parts = [f"nodes {nodes:5d}"] if nodes else []
+        parts += [f"reference {reference_mm:7.2f} mm"] if reference_mm else []
+        return "  ".join(parts + [message])
 
     def _bar(self, stage, fraction, nodes, reference_mm, message):
         from tqdm import tqdm
@@ -196,8 +206,7 @@ class _Progress:
             self.bar = tqdm(total=100, desc=stage, file=self.stream, unit="%", dynamic_ncols=True,
                             bar_format="{desc:<8} {percentage:5.1f}%|{bar}| {elapsed}{postfix}")
         self.bar.n = round(100 * min(max(fraction, 0.0), 1.0), 1)
-        self.bar.set_postfix_str(f"nodes {nodes}, reference {reference_mm:.2f} mm {message}".rstrip(),
-                                 refresh=False)
+        self.bar.set_postfix_str(" ".join(self._detail(nodes, reference_mm, message).split()), refresh=False)
         self.bar.refresh()
 
     def close(self):
@@ -347,7 +356,7 @@ def main(argv=None, out=None, err=None):
         if args.command == "geometry":
             return _geometry(args, out)
         if args.command == "check":
-            return _check(args, out)
+            return _check(args, out, err)
         if args.command == "plot":
             return _plot(args, out)
         if args.command == "export":

@@ -473,7 +473,7 @@ def axes_to_poses(axis_names, axes, final_pose, channel, pitch):
 
 
 def verify_exported_plan(path, blisk, threshold=0.0, max_step=MAX_VERTEX_STEP, anchor_stride=256,
-                         geometry_id=None):
+                         geometry_id=None, progress=None):
     """Re-check an export directory with the exact clearance of every electrode vertex at every sample.
 
     Reads electrode.stl and the sample poses (not the planner's objects) and
@@ -509,6 +509,9 @@ def verify_exported_plan(path, blisk, threshold=0.0, max_step=MAX_VERTEX_STEP, a
         memory); the bisection between them adapts, so this changes the time little.
     geometry_id : str, optional
         Must equal the plan's geometry id when given.
+    progress : callable, optional
+        ``progress(stage, fraction, 0, 0.0, message)`` with stage "anchors" then "between"
+        (the fraction of the path whose samples are settled).
 
     Returns
     -------
@@ -576,7 +579,9 @@ def verify_exported_plan(path, blisk, threshold=0.0, max_step=MAX_VERTEX_STEP, a
         blade = need[..., :2].any(axis=-1)
         return blade, need[..., 2:].any(axis=-1) & ~blade
 
-    for j in anchors:
+    report = progress or (lambda *a: None)
+    for i, j in enumerate(anchors):
+        report("anchors", i / len(anchors), 0, 0.0, f"{N} samples x {m} vertices")
         values[j] = evaluate(transform_points(P[j:j + 1], V)[0])
         counts["full"] += 1
         update(np.full(m, j), np.arange(m), values[j])
@@ -586,7 +591,9 @@ def verify_exported_plan(path, blisk, threshold=0.0, max_step=MAX_VERTEX_STEP, a
             travel = np.linalg.norm(transform_points(P[b], V)[0] - transform_points(P[a], V)[0], axis=1)
             # exact values closer than 1-Lipschitz allows: the sign jumped (a blade footprint's edge)
             stack.append((a, b, np.abs(values[a] - values[b]) > travel[:, None] + EXACT_TOLERANCE))
+    settled = 0
     while stack:
+        report("between", settled / max(N - 1, 1), 0, 0.0, "")
         a, b, jump = stack.pop()
         W = transform_points(P[a + 1:b], V)                                # interior samples (L, m, 3)
         da = np.linalg.norm(W - transform_points(P[a], V), axis=2)[..., None]
@@ -611,6 +618,8 @@ def verify_exported_plan(path, blisk, threshold=0.0, max_step=MAX_VERTEX_STEP, a
             rows, idx = np.nonzero(mask)
             if len(rows):
                 update(a + 1 + rows, idx, evaluate(W[rows, idx], blades))
+        settled += b - a
+    report("between", 1.0, 0, 0.0, "done")
 
     min_clearance = {s: float(v) for s, v in zip(SURFACES, best)}
     problems = [f"{s} clearance {best[i]:.4f} mm below {threshold} mm at sample {where[i][0]}"
