@@ -103,7 +103,7 @@ def joint_trajectory_msg(arrays, frame_id=""):
     return msg
 
 
-class _StoredPlan:
+class _KnownPlan:
     __slots__ = ("plan_id", "channel", "geometry_id", "electrode_id", "axis_names", "samples", "final_pose")
 
     def __init__(self, msg):
@@ -117,7 +117,10 @@ class _StoredPlan:
         # the message's final pose is in the plan's channel; the kinematics want channel 0's,
         # which A's last value (channel * pitch in the planner's convention) turns back to
         final = np.array(msg.final_pose, dtype=np.float64).reshape(4, 4)
-        if "A" in self.axis_names and len(self.samples):
+        reference = np.array(msg.reference_pose, dtype=np.float64).reshape(4, 4)
+        if reference.any():                 # the publisher says what the axis values are measured from
+            final = reference
+        elif "A" in self.axis_names and len(self.samples):
             final = rotation_about_x(-self.samples[-1, self.axis_names.index("A")]) @ final
         elif len(self.samples) and len(msg.poses.poses) == len(self.samples):
             # no A (4 axes): X, Y, Z, C are channel 0's and the blisk is indexed to the channel outside the
@@ -178,7 +181,7 @@ class AxisBridgeNode(Node):
                                            callback_group=MutuallyExclusiveCallbackGroup())
 
     def on_plan(self, msg):
-        plan = _StoredPlan(msg)
+        plan = _KnownPlan(msg)
         with self._arrived:
             self.plans[plan.plan_id] = plan
             self.plans.move_to_end(plan.plan_id)

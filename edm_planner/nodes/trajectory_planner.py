@@ -3,7 +3,10 @@
 Builds its models from the geometry_loader's latched ``geometry`` topic (the
 exact blisk and the electrode design in ``model_json``; electrodes are
 re-designed here because the search needs their labelled surface samples)
-and serves ``plan_channel`` (edm_planner_msgs/PlanChannel).
+and serves ``plan_channel`` (edm_planner_msgs/PlanChannel) and
+``plan_roughing`` (edm_planner_msgs/PlanRoughing: Chen & Dong plunge roughing,
+``edm_planner.roughing``). Both kinds of plan go on ``plan`` and into the plan
+store, so the axis bridge executes either by id.
 
 Topics: ``plan`` (edm_planner_msgs/ChannelPlan, TRANSIENT_LOCAL, the latest
 certified plan), ``plan_progress`` (edm_planner_msgs/PlanProgress, while
@@ -35,8 +38,9 @@ import threading
 from dataclasses import replace
 
 import numpy as np
-from edm_planner_msgs.msg import AxisPath, AxisPoint, BliskGeometry, ChannelPlan, PlanMetrics, PlanProgress
-from edm_planner_msgs.srv import PlanChannel
+from edm_planner_msgs.msg import (AxisPath, AxisPoint, BliskGeometry, ChannelPlan, PlanMetrics, PlanProgress,
+                                  RoughingStatistics)
+from edm_planner_msgs.srv import PlanChannel, PlanRoughing
 from geometry_msgs.msg import PoseArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
@@ -50,7 +54,9 @@ from ..planning.objective import Weights
 from ..planning.plan import PlanOptions
 from ..planning.planner import plan_channel
 from ..planning.search import SearchOptions
-from ..planning.store import PlanStoreError, open_store, plan_to_stored, request_key, stored_to_plan
+from ..planning.store import (PlanStoreError, open_store, plan_to_stored, request_key, roughing_to_stored,
+                              stored_to_plan)
+from ..roughing import RoughingOptions, plan_roughing, roughing_plan_id
 from .conversions import error_code, matrix_to_pose
 from .geometry_loader import LATCHED
 from .runtime import answer, spin_node
@@ -132,6 +138,56 @@ def pose_array_msg(poses, frame_id):
     return msg
 
 
+def roughing_options(request):
+    """PlanRoughing request -> RoughingOptions (0 / NaN take the defaults)."""
+    d = RoughingOptions()
+
+    def given(x):
+        x = float(x)
+        return None if (np.isnan(x) or x == 0.0) else x
+
+    radius, mu, allowance = given(request.tool_radius), given(request.safeguard_factor), given(request.allowance)
+    return RoughingOptions(tool_radius=radius, mu=d.mu if mu is None else mu,
+                           allowance=d.allowance if allowance is None else allowance)
+
+
+def statistics_msg(d):
+    """ErrorStats.to_dict() -> RoughingStatistics message."""
+    return RoughingStatistics(point_count=int(d["count"]), mean_absolute_error=float(d["mean_abs"]),
+                              standard_deviation=float(d["std_abs"]), min_error=float(d["min"]),
+                              max_error=float(d["max"]), range=float(d["range"]),
+                              max_absolute_error=float(d["max_abs"]))
+
+
+def fill_roughing_response(response, stored, frame_id):
+    """A PlanRoughing response from a stored roughing plan (fresh or from the store alike)."""
+    m, a = stored.meta, stored.arrays
+    response.success = True
+    response.error_code = error_code(ErrorCode.SUCCESS)
+    response.message = m["message"]
+    response.plan_id = stored.plan_id
+    response.tool_radius, response.min_blade_gap = float(m["tool_radius"]), float(m["l_min"])
+    response.max_tool_radius, response.line_count = float(m["r_max"]), int(m["line_count"])
+    response.labels = list(m["labels"])
+    response.tool_poses = pose_array_msg(a["tool_poses"], frame_id)
+    response.initial_tool_poses = pose_array_msg(a["initial_tool_poses"], frame_id)
+    response.hausdorff_initial = [float(v) for v in a["hausdorff_initial"]]
+    response.hausdorff = [float(v) for v in a["hausdorff"]]
+    response.initial, response.optimised = statistics_msg(m["stats_initial"]), statistics_msg(m["stats"])
+    response.mae_reduction_percent = float(m["mae_reduction_percent"])
+    response.axis_path = axis_path_msg(stored.axis_names, stored.samples)
+    response.planning_time = float(m["planning_time"])
+
+
+def channel_plan_msg(stored, poses, axis_path, metrics):
+    """The ChannelPlan message the bridge takes, of a stored plan of any kind."""
+    return ChannelPlan(plan_id=stored.plan_id, geometry_id=stored.geometry_id, channel=int(stored.channel),
+                       electrode_id=stored.electrode_id, method=stored.method,
+                       final_pose=[float(v) for v in stored.poses[-1].reshape(-1)],
+                       reference_pose=[float(v) for v in np.asarray(stored.final_pose).reshape(-1)],
+                       poses=poses, axis_path=axis_path, metrics=metrics)
+
+
 class _Prepared:
     """A geometry being (or done being) prepared for planning."""
 
@@ -171,6 +227,8 @@ class TrajectoryPlannerNode(Node):
         self.progress_pub = self.create_publisher(PlanProgress, "plan_progress", 10)
         self.service = self.create_service(PlanChannel, "plan_channel", self.on_plan,
                                            callback_group=MutuallyExclusiveCallbackGroup())
+        self.roughing_service = self.create_service(PlanRoughing, "plan_roughing", self.on_roughing,
+                                                    callback_group=MutuallyExclusiveCallbackGroup())
 
     # -- geometry ---------------------------------------------------------------------------
     def on_geometry(self, msg):
@@ -265,12 +323,45 @@ class TrajectoryPlannerNode(Node):
             path = os.path.join(root, plan.plan_id)
             write_plan(plan, path, geometry.blisk)
             response.export_path = path
-        self.plan_pub.publish(ChannelPlan(
-            plan_id=plan.plan_id, geometry_id=plan.geometry_id, channel=int(plan.channel),
-            electrode_id=plan.electrode_id, method=options.search.method,
-            final_pose=[float(v) for v in plan.poses[-1].reshape(-1)], poses=response.poses,
-            axis_path=response.axis_path, metrics=response.metrics))
+        self.plan_pub.publish(channel_plan_msg(plan_to_stored(plan), response.poses, response.axis_path,
+                                               response.metrics))
         self.get_logger().info(f"plan {plan.plan_id}: {response.message}")
+
+    # -- roughing ---------------------------------------------------------------------------
+    def on_roughing(self, request, response):
+        return answer(self, "PlanRoughing", self._roughing, request, response)
+
+    def _roughing(self, request, response):
+        prepared = self._geometry(request.geometry_id)
+        gid = prepared.geometry.geometry_id
+        options = roughing_options(request)
+        plan_id = roughing_plan_id(gid, request.channel, options)
+        stored, note = None, ""
+        if self.store is not None:
+            try:
+                stored = self.store.get(plan_id)
+            except PlanStoreError as exc:
+                self.get_logger().error(f"plan store: {exc.message}; planning anew")
+        if stored is None:
+            def progress(stage, fraction, nodes, reference, message):
+                self.progress_pub.publish(PlanProgress(
+                    request_id=f"{gid[:8]}/{request.channel}/roughing", stage=stage, fraction=float(fraction),
+                    nodes=int(nodes), reference=float(reference), message=message))
+
+            result = plan_roughing(prepared.geometry.blisk, int(request.channel), options, progress=progress)
+            stored = roughing_to_stored(result, plan_id, gid)
+            note = self._keep(stored, plan_id)
+        else:
+            note = f"; from the plan store (planned {stored.created})"
+        fill_roughing_response(response, stored, self.get_parameter("frame_id").value)
+        response.message += note
+        nan = float("nan")
+        metrics = PlanMetrics(node_count=len(response.labels), planning_time=response.planning_time,
+                              axis_names=list(stored.axis_names), min_clearance_suction=nan,
+                              min_clearance_pressure=nan, min_clearance_hub=nan, min_clearance_shroud=nan)
+        self.plan_pub.publish(channel_plan_msg(stored, pose_array_msg(stored.poses, response.tool_poses.header.frame_id),
+                                               response.axis_path, metrics))
+        self.get_logger().info(f"roughing plan {plan_id}: {response.message}")
 
     # -- the plan store ---------------------------------------------------------------------
     def _stored(self, key):
@@ -290,12 +381,13 @@ class TrajectoryPlannerNode(Node):
 
     def _store(self, plan, key):
         """Keep a certified plan; returns a note for the answer when it could not be kept."""
-        if not plan.success:
-            return ""
+        return self._keep(plan_to_stored(plan), key) if plan.success else ""
+
+    def _keep(self, stored, key):
         if self.store is None:
             return f"; not kept in the plan store: {self.store_error}" if self.store_error else ""
         try:
-            self.store.put(plan_to_stored(plan), key)
+            self.store.put(stored, key)
         except PlanStoreError as exc:
             self.get_logger().error(exc.message)
             return f"; not kept in the plan store: {exc.message}"

@@ -369,3 +369,33 @@ def stored_to_plan(stored):
                 options=plan_options_from_dict(stored.meta["options"]), axis_names=stored.axis_names,
                 samples=stored.samples, poses=stored.poses, nodes=stored.arrays["nodes"],
                 metrics=PlanMetrics(**m))
+
+
+# -- roughing plans ---------------------------------------------------------------------------
+
+def roughing_to_stored(result, plan_id, geometry_id):
+    """A :class:`~edm_planner.roughing.RoughingResult` as a record (kind "roughing").
+
+    Per-position arrays are kept in travel order; the dense poses are the tool frames along the path.
+    """
+    order = np.asarray(result.order)
+    meta = {"labels": [result.labels[i] for i in order], "tool_radius": result.tool_radius,
+            "l_min": result.l_min, "r_max": result.r_max, "line_count": int(result.line_count),
+            "stats_initial": result.stats_initial.to_dict(), "stats": result.stats.to_dict(),
+            "mae_reduction_percent": result.mae_reduction_percent, "planning_time": result.planning_time,
+            "options": result.options.to_dict(),
+            "message": (f"{result.position_count} plunge positions ({result.groove_count} grooving, "
+                        f"{result.line_count} expansion lines), tool radius {result.tool_radius:.4f} mm: mean "
+                        f"absolute error {result.stats_initial.mean_abs:.5f} -> {result.stats.mean_abs:.5f} mm "
+                        f"({result.mae_reduction_percent:.2f} % less; the paper: 57.79 %)")}
+    return StoredPlan(
+        plan_id=plan_id, kind="roughing", geometry_id=geometry_id, channel=int(result.channel), electrode_id="tool",
+        method="plunge_roughing", axis_names=tuple(result.axis_names),
+        samples=np.asarray(result.samples, dtype=np.float64),
+        final_pose=np.asarray(result.reference_pose, dtype=np.float64),
+        poses=np.asarray(result.path.tool_poses(), dtype=np.float64), meta=meta,
+        arrays={"tool_poses": np.asarray(result.poses, dtype=np.float64)[order],
+                "initial_tool_poses": np.asarray(result.initial_poses, dtype=np.float64)[order],
+                "hausdorff_initial": np.asarray(result.hausdorff_initial, dtype=np.float64)[order],
+                "hausdorff": np.asarray(result.hausdorff, dtype=np.float64)[order],
+                "bottom_index": np.asarray(result.bottom_index, dtype=np.int64)})

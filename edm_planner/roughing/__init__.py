@@ -15,8 +15,8 @@ error statistics, an untimed X Y Z A C axis path). Modules, one concern each:
 """
 
 from .options import RoughingOptions, RoughingOptionsError
-from .planner import PAPER_MAE_REDUCTION_PERCENT, RoughingResult, plan_roughing
+from .planner import PAPER_MAE_REDUCTION_PERCENT, RoughingResult, plan_roughing, roughing_plan_id
 from .stats import ErrorStats, error_stats, reduction_percent
 
-__all__ = ["RoughingOptions", "RoughingOptionsError", "RoughingResult", "plan_roughing", "ErrorStats",
+__all__ = ["RoughingOptions", "RoughingOptionsError", "RoughingResult", "plan_roughing", "roughing_plan_id", "ErrorStats",
            "error_stats", "reduction_percent", "PAPER_MAE_REDUCTION_PERCENT"]

@@ -19,6 +19,8 @@ side (radially inwards of it). The hub is therefore no obstacle; the retract
 height takes the tool bottom below the hub radius, clear of the blades.
 """
 
+import hashlib
+import json
 import time
 from dataclasses import dataclass, field
 
@@ -165,6 +167,12 @@ class RoughingResult:
             "path_samples": len(self.samples), "planning_time_s": self.planning_time,
             "options": self.options.to_dict(),
         }
+
+
+def roughing_plan_id(geometry_id, channel, options):
+    """A deterministic id of a roughing request (the planner is deterministic): equal requests, equal ids."""
+    key = json.dumps(["plunge_roughing", geometry_id, int(channel), options.to_dict()], sort_keys=True, default=str)
+    return hashlib.sha256(key.encode()).hexdigest()[:16]
 
 
 def target_surface(blisk, allowance):
