@@ -145,3 +145,33 @@ def test_export_and_store_errors(setup, tmp_path):
     assert rc == ErrorCode.FILE_ERROR, err
     rc, _, err = _run(["store", "list", "--store", "none"])
     assert rc == ErrorCode.INVALID_REQUEST
+
+
+def test_rough_plans_keeps_and_exports_a_roughing_plan(tmp_path):
+    import json
+
+    from edm_planner.machine.nc import parse_nc
+
+    store = str(tmp_path / "store")
+    argv = ["rough", "--geometry", str(CONFIG / "default_blisk.yaml"), "--channel", "4", "--store", store]
+    rc, out, err = _run(argv + ["--out", str(tmp_path / "r")])
+    assert rc == 0, err
+    assert "kept in the plan store" in out and "the paper: 57.79 %" in out and "optimise" in err
+    plan_id = out.split("roughing plan ")[1].split(":")[0]
+    doc = json.loads((tmp_path / "r" / "roughing.json").read_text())
+    assert doc["plan_id"] == plan_id and doc["channel"] == 4 and len(doc["positions"]) == len(doc["labels"]) > 20
+    mae = float(out.split("optimised")[1].split()[0])
+    assert mae == pytest.approx(doc["stats"]["mean_abs"], abs=1e-5) and mae < doc["stats_initial"]["mean_abs"]
+    axes = np.loadtxt(tmp_path / "r" / "axes.csv", delimiter=",", skiprows=1)
+    for p in doc["positions"][::10]:             # each plunge bottom is a sample of the axis path
+        assert axes[p["sample"], 0] == p["sample"]
+    rc, out, err = _run(argv)
+    assert rc == 0 and "from the plan store" in out and "optimise" not in err
+    rc, out, err = _run(["export", plan_id, "--store", store, "--out", str(tmp_path / "nc"), "--format", "nc"])
+    assert rc == 0, err
+    nc = parse_nc((tmp_path / "nc" / f"{plan_id}.nc").read_text())
+    assert nc["plan_id"] == plan_id and len(nc["positions"]) == len(axes)
+    rc, _, err = _run(argv + ["--tool-radius", "50"])
+    assert rc == ErrorCode.INFEASIBLE and "exceeds r_max" in err
+    rc, _, err = _run(argv + ["--allowance", "-1"])
+    assert rc == ErrorCode.INVALID_REQUEST and err.count("INVALID_REQUEST") == 1

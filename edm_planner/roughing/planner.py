@@ -233,8 +233,8 @@ def plan_roughing(blisk, channel=0, options=RoughingOptions(), progress=None, ma
     options : RoughingOptions
     progress : callable, optional
         ``progress(stage, fraction, nodes, reference_mm, message)`` as the EDM planner's: stages
-        'positions', 'optimise' (nodes = positions done, reference_mm = their mean Hausdorff
-        distance) and 'path'.
+        'positions', 'optimise' (nodes = positions done, the message names the position and the
+        mean Hausdorff distance so far; reference_mm is 0) and 'path'.
     machine : MachineConfig, optional
         If given, the path's axis values are checked against its travel (:func:`check_travel`).
 
@@ -318,10 +318,11 @@ def plan_roughing(blisk, channel=0, options=RoughingOptions(), progress=None, ma
                            f"position {pos.labels[i]}: the best flat-bottom pose deviates {h[i]:.4f} mm from the "
                            f"target surface, more than the allowance {o.allowance:g} mm: it would cut into the "
                            "finished shroud; choose a smaller tool radius or a larger allowance")
-        _report(progress, "optimise", (k + 1) / n, k + 1, float(h[pos.order[:k + 1]].mean()), pos.labels[i])
+        _report(progress, "optimise", (k + 1) / n, k + 1, 0.0,
+                f"{pos.labels[i]}, mean Hausdorff distance so far {h[pos.order[:k + 1]].mean():.5f} mm")
 
     # the axis path in travel order
-    _report(progress, "path", 0.0, n, float(h.mean()), "axis path")
+    _report(progress, "path", 0.0, n, 0.0, "axis path")
     order = pos.order
     bottom_q = axes_for(poses[order, :3, 3], poses[order, :3, 2], reference, a_near)
     if o.retract_height is not None:
@@ -333,7 +334,7 @@ def plan_roughing(blisk, channel=0, options=RoughingOptions(), progress=None, ma
     path = plunge_path(bottom_q, retract, reference, radius, o.path_spacing)
     if machine is not None:
         check_travel(path.samples, path.axis_names, machine)
-    _report(progress, "path", 1.0, n, float(h.mean()), f"{len(path.samples)} samples")
+    _report(progress, "path", 1.0, n, 0.0, f"{len(path.samples)} samples")
 
     return RoughingResult(
         channel=channel, options=o, l_min=l_min, r_max=r_max, tool_radius=radius, labels=pos.labels, order=order,
