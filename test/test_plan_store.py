@@ -167,7 +167,7 @@ def _wait_for_service(ros, client, srv_type, name, timeout=90.0):
 def test_plans_survive_restarts_of_the_planner_and_the_bridge(ros, node_processes, tmp_path, field_cache):
     store = tmp_path / "store"
     node_processes.start("geometry_loader")
-    planner_params = {"plan_store": str(store), "cache_dir": field_cache}
+    planner_params = {"plan_store": str(store), "cache_dir": field_cache, "unknown_geometry_wait": 90.0}
     node_processes.start("trajectory_planner", params=planner_params)
     client = ros.add(Node("store_client", context=ros.context))
     request = PlanChannel.Request(channel=2, electrode_id="rear", electrode=rear_design())

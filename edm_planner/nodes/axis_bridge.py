@@ -70,10 +70,10 @@ from ..geometry.frames import rotation_about_x
 from ..machine.config import LINEAR, default_machine_path, load_machine
 from ..machine.nc import nc_program, trajectory_csv
 from ..machine.trajectory import plan_trajectory
-from ..planning.store import PlanStoreError, open_store
+from ..planning.store import PlanStoreError
 from .conversions import error_code
 from .geometry_loader import LATCHED
-from .runtime import answer, spin_node
+from .runtime import answer, declare_plan_store, spin_node
 
 
 def duration_msg(seconds):
@@ -154,13 +154,7 @@ class AxisBridgeNode(Node):
         self.declare_parameter("max_plans", 50)
         self.declare_parameter("plan_wait", 10.0)
         self.declare_parameter("export_dir", "")
-        self.declare_parameter("plan_store", "")
-        self.store, self.store_error = None, ""
-        try:
-            self.store = open_store(self.get_parameter("plan_store").value)
-        except PlanStoreError as exc:   # plans from the topic still work; unknown ids say why
-            self.store_error = exc.message
-            self.get_logger().error(f"plan store not used: {exc.message}")
+        self.store, self.store_error = declare_plan_store(self)
         path = self.get_parameter("machine_file").value or _default_machine_file()
         self.machine = load_machine(path)   # a bad machine file stops the node at start, with the key named
         self.get_logger().info(f"machine {self.machine.name!r} from {path}: joints "

@@ -54,3 +54,19 @@ def answer(node, service, fill, request, response):
     response.error_code = error_code(code)
     response.message = message
     return response
+
+
+def declare_plan_store(node):
+    """Declare the ``plan_store`` parameter and open the store: (store or None, why it is not used).
+
+    A store that cannot be used (foreign, corrupt, unwritable) is logged and left alone; the node
+    works without it and names the reason in its answers.
+    """
+    from ..planning.store import PlanStoreError, open_store
+
+    node.declare_parameter("plan_store", "")
+    try:
+        return open_store(node.get_parameter("plan_store").value), ""
+    except PlanStoreError as exc:
+        node.get_logger().error(f"plan store not used: {exc.message}")
+        return None, exc.message

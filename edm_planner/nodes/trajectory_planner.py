@@ -54,12 +54,12 @@ from ..planning.objective import Weights
 from ..planning.plan import PlanOptions
 from ..planning.planner import plan_channel
 from ..planning.search import SearchOptions
-from ..planning.store import (PlanStoreError, open_store, plan_to_stored, request_key, roughing_to_stored,
+from ..planning.store import (PlanStoreError, plan_to_stored, request_key, roughing_to_stored,
                               stored_to_plan)
 from ..roughing import RoughingOptions, plan_roughing, roughing_plan_id
 from .conversions import error_code, matrix_to_pose
 from .geometry_loader import LATCHED
-from .runtime import answer, spin_node
+from .runtime import answer, declare_plan_store, spin_node
 
 _DESIGN_FLOATS = ("discharge_gap", "circumferential_reduction", "radial_reduction", "split_fraction",
                   "split_overlap")
@@ -210,13 +210,7 @@ class TrajectoryPlannerNode(Node):
         self.declare_parameter("geometry_wait", 120.0)
         self.declare_parameter("unknown_geometry_wait", 5.0)
         self.declare_parameter("frame_id", "blisk")
-        self.declare_parameter("plan_store", "")
-        self.store, self.store_error = None, ""
-        try:
-            self.store = open_store(self.get_parameter("plan_store").value)
-        except PlanStoreError as exc:   # plan without the store, and say so in every answer
-            self.store_error = exc.message
-            self.get_logger().error(f"plan store not used: {exc.message}")
+        self.store, self.store_error = declare_plan_store(self)
         self.geometries = {}
         self.latest = None
         self._lock = threading.Lock()
