@@ -157,3 +157,35 @@ def test_bad_poses(system):
     assert call(system, [p]).error_code.val == ErrorCode.INVALID_REQUEST
     res = call(system, [system[3]] * 2001, method=CheckInterference.Request.METHOD_FAST)
     assert res.error_code.val == ErrorCode.INVALID_REQUEST and "at most 2000" in res.message
+
+
+def test_a_re_designed_electrode_is_checked_as_requested(system):
+    """ElectrodeDesign overrides: the rear electrode of a front/rear split, checked exactly at its final pose."""
+    from edm_planner_msgs.msg import ElectrodeDesign
+
+    from edm_planner.geometry.electrode import ElectrodeDesign as Design
+    from edm_planner.geometry.electrode import design_electrodes
+    from edm_planner.geometry.loader import load_geometry
+
+    from conftest import CONFIG
+
+    nan = float("nan")
+    msg = ElectrodeDesign(discharge_gap=0.2, circumferential_reduction=0.03, reduction_side="", radial_reduction=3.0,
+                          axial_start=nan, axial_end=nan, split="front_rear", split_fraction=nan, split_overlap=1.0)
+    g = load_geometry(CONFIG / "default_blisk.yaml")
+    rear = design_electrodes(g.blisk, Design(discharge_gap=0.2, circumferential_reduction=0.03,
+                                             radial_reduction=3.0, split="front_rear", split_overlap=1.0))[1]
+    assert rear.electrode_id == "rear"
+    res = call(system, [rear.final_pose], electrode_id="rear", electrode=msg)
+    assert res.error_code.val == ErrorCode.SUCCESS, res.message
+    c = clearances(res)[0]
+    # the hub keeps the 0.2 mm gap; the blades more (h = 0.03 rad); the shroud 3 mm more
+    assert c[2] == pytest.approx(0.2, abs=3e-6) and min(c[0], c[1]) > 0.2 and c[3] > 3.0
+    again = call(system, [rear.final_pose], electrode_id="rear", electrode=msg,
+                 method=CheckInterference.Request.METHOD_FAST)                     # the design is kept
+    np.testing.assert_allclose(clearances(again)[0], c, atol=again.error_bound)
+    # the geometry file's electrodes are untouched; a bad design is refused
+    assert call(system, [rear.final_pose], electrode_id="rear").error_code.val == ErrorCode.UNKNOWN_ID
+    msg.split = "diagonal"
+    bad = call(system, [rear.final_pose], electrode_id="rear", electrode=msg)
+    assert bad.error_code.val in (ErrorCode.INVALID_REQUEST, ErrorCode.INVALID_GEOMETRY) and "split" in bad.message

@@ -15,6 +15,7 @@ Methods (mirrored by CheckInterference.srv's METHOD_* constants):
 * MESH -- triangle-exact clearance of the electrode mesh (python-fcl).
 """
 
+import copy
 import logging
 from dataclasses import dataclass, field
 from enum import IntEnum
@@ -114,6 +115,19 @@ class ChannelChecker:
             self._paper = PaperCriteria(self.blisk, delta1=self.options.paper_delta1,
                                         delta2=self.options.paper_delta2)
         return self._paper
+
+    def with_electrodes(self, electrodes):
+        """The same geometry and methods (their models shared, built once) with other electrodes.
+
+        Parameters
+        ----------
+        electrodes : dict
+            electrode id -> (mesh in its frame, final pose (4, 4) in channel 0).
+        """
+        other = copy.copy(self)
+        other.electrodes = dict(electrodes)
+        other._fast = self.fast            # built (or loaded) once, shared
+        return other
 
     # -- validation ----------------------------------------------------------
     def electrode(self, electrode_id):

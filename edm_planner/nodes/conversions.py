@@ -4,6 +4,8 @@ Coordinates stay in millimetres in every message (geometry_msgs positions
 included, as the message definitions state); RViz markers get a 0.001 scale.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import trimesh
 from edm_planner_msgs.msg import ErrorCode, GeometrySummary
@@ -13,6 +15,7 @@ from shape_msgs.msg import Mesh, MeshTriangle
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker
 
+from ..errors import EdmError
 from ..errors import ErrorCode as CoreErrorCode
 
 
@@ -99,3 +102,27 @@ def mesh_marker(mesh, ns, marker_id, frame_id, stamp, rgba, pose=None):
     tri = mesh.vertices[mesh.faces.reshape(-1)]
     m.points = [Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in tri]
     return m
+
+
+_DESIGN_FLOATS = ("discharge_gap", "circumferential_reduction", "radial_reduction", "split_fraction",
+                  "split_overlap")
+
+
+def design_override(msg, base):
+    """ElectrodeDesign message -> design, or None when the message is untouched (all zero / empty)."""
+    floats = {name: float(getattr(msg, name)) for name in _DESIGN_FLOATS + ("axial_start", "axial_end")}
+    if not msg.reduction_side and not msg.split and all(v == 0.0 for v in floats.values()):
+        return None
+    changes = {k: v for k, v in floats.items() if k in _DESIGN_FLOATS and not np.isnan(v)}
+    if msg.reduction_side:
+        changes["reduction_side"] = msg.reduction_side
+    if msg.split:
+        changes["split"] = msg.split
+    a0, a1 = floats["axial_start"], floats["axial_end"]
+    if not (np.isnan(a0) and np.isnan(a1)):
+        if np.isnan(a0) or np.isnan(a1):
+            raise EdmError(CoreErrorCode.INVALID_REQUEST, "electrode.axial_start and axial_end: give both or neither")
+        changes["axial_range"] = (a0, a1)
+    if not all(np.isfinite(v) for v in changes.values() if isinstance(v, float)):
+        raise EdmError(CoreErrorCode.INVALID_REQUEST, "electrode design values must be finite numbers")
+    return replace(base, **changes)

@@ -2,7 +2,9 @@
 
 Builds its models from the geometry_loader's latched ``geometry`` topic
 (every geometry it has seen, by id) and serves ``check_interference``
-(edm_planner_msgs/CheckInterference).
+(edm_planner_msgs/CheckInterference). A request may re-design the electrodes
+(ElectrodeDesign overrides, as PlanChannel's); each design is made once and
+kept, sharing the geometry's distance field.
 
 Parameters
 ----------
@@ -35,10 +37,12 @@ from rclpy.node import Node
 
 from ..errors import EdmError, ErrorCode
 from ..geometry.blisk import Blisk
+from ..geometry.electrode import ElectrodeDesign, design_electrodes
 from ..interference.checker import ChannelChecker, CheckerOptions, Method
 from ..machine.kinematics import AXES_5, FiveAxisKinematics
 from .runtime import answer, spin_node
-from .conversions import error_code, msg_to_mesh, pose_to_matrix, poses_to_arrays, quaternions_to_matrices
+from .conversions import (design_override, error_code, msg_to_mesh, pose_to_matrix, poses_to_arrays,
+                          quaternions_to_matrices)
 from .geometry_loader import LATCHED
 
 
@@ -55,6 +59,8 @@ class InterferenceCheckerNode(Node):
         self.declare_parameter("paper_delta2", 0.0)
         self.declare_parameter("prebuild_fast", True)
         self.checkers = {}
+        self.designs = {}                   # geometry id -> the geometry file's electrode design
+        self.redesigned = {}                # (geometry id, design) -> checker with those electrodes
         self.latest = None
         self._lock = threading.Lock()
         self.create_subscription(BliskGeometry, "geometry", self.on_geometry, LATCHED,
@@ -77,7 +83,9 @@ class InterferenceCheckerNode(Node):
         if gid in self.checkers:
             return
         try:
-            blisk = Blisk.from_dict(json.loads(msg.model_json))
+            model = json.loads(msg.model_json)
+            blisk = Blisk.from_dict(model)
+            design = ElectrodeDesign.from_dict(model.get("electrode_design") or {})
             electrodes = {eid: (msg_to_mesh(m), pose_to_matrix(p))
                           for eid, m, p in zip(msg.electrode_ids, msg.electrodes, msg.electrode_final_poses)}
             checker = ChannelChecker(blisk, electrodes, gid, self._options())
@@ -86,6 +94,7 @@ class InterferenceCheckerNode(Node):
             return
         with self._lock:
             self.checkers[gid] = checker
+            self.designs[gid] = design
             self.latest = gid
         self.get_logger().info(f"geometry {gid[:12]}: {blisk.blade_count} channels, "
                                f"electrodes {sorted(electrodes)}")
@@ -116,6 +125,7 @@ class InterferenceCheckerNode(Node):
             raise EdmError(ErrorCode.INVALID_REQUEST, f"unknown method {request.method}") from None
         if not np.isfinite(request.threshold):
             raise EdmError(ErrorCode.INVALID_REQUEST, "threshold must be finite (mm)")
+        checker = self._redesigned(gid, checker, request.electrode)
         mesh, final_pose = checker.electrode(request.electrode_id)
         poses = self._poses(request, checker, final_pose)
         result = checker.check(poses, channel=request.channel, electrode_id=request.electrode_id,
@@ -141,6 +151,25 @@ class InterferenceCheckerNode(Node):
         n_coll = int(result.colliding.sum())
         response.message = f"{len(poses)} pose(s), {n_coll} colliding, method {method.name.lower()}"
         response.error_code = error_code(ErrorCode.SUCCESS)
+
+    def _redesigned(self, gid, checker, msg):
+        """The checker of the request's electrode design (the geometry's own when not overridden)."""
+        design = design_override(msg, self.designs[gid])
+        if design is None:
+            return checker
+        key = (gid, json.dumps(design.to_dict(), sort_keys=True, default=str))
+        with self._lock:
+            known = self.redesigned.get(key)
+        if known is None:
+            try:
+                electrodes = design_electrodes(checker.blisk, design)
+            except ValueError as exc:
+                raise EdmError(ErrorCode.INVALID_REQUEST, f"electrode design: {exc}") from None
+            known = checker.with_electrodes({e.electrode_id: (e.mesh, e.final_pose) for e in electrodes})
+            with self._lock:
+                self.redesigned[key] = known
+            self.get_logger().info(f"geometry {gid[:12]}: electrodes {sorted(known.electrodes)} re-designed")
+        return known
 
     @staticmethod
     def _poses(request, checker, final_pose):

@@ -35,7 +35,6 @@ plan_store : str
 import json
 import os
 import threading
-from dataclasses import replace
 
 import numpy as np
 from edm_planner_msgs.msg import (AxisPath, AxisPoint, BliskGeometry, ChannelPlan, PlanMetrics, PlanProgress,
@@ -57,33 +56,9 @@ from ..planning.search import SearchOptions
 from ..planning.store import (PlanStoreError, plan_to_stored, request_key, roughing_to_stored,
                               stored_to_plan)
 from ..roughing import RoughingOptions, plan_roughing, roughing_plan_id
-from .conversions import error_code, matrix_to_pose
+from .conversions import design_override, error_code, matrix_to_pose
 from .geometry_loader import LATCHED
 from .runtime import answer, declare_plan_store, spin_node
-
-_DESIGN_FLOATS = ("discharge_gap", "circumferential_reduction", "radial_reduction", "split_fraction",
-                  "split_overlap")
-
-
-def design_override(msg, base):
-    """ElectrodeDesign message -> design, or None when the message is untouched (all zero / empty)."""
-    floats = {name: float(getattr(msg, name)) for name in _DESIGN_FLOATS + ("axial_start", "axial_end")}
-    if not msg.reduction_side and not msg.split and all(v == 0.0 for v in floats.values()):
-        return None
-    changes = {k: v for k, v in floats.items() if k in _DESIGN_FLOATS and not np.isnan(v)}
-    if msg.reduction_side:
-        changes["reduction_side"] = msg.reduction_side
-    if msg.split:
-        changes["split"] = msg.split
-    a0, a1 = floats["axial_start"], floats["axial_end"]
-    if not (np.isnan(a0) and np.isnan(a1)):
-        if np.isnan(a0) or np.isnan(a1):
-            raise EdmError(ErrorCode.INVALID_REQUEST, "electrode.axial_start and axial_end: give both or neither")
-        changes["axial_range"] = (a0, a1)
-    if not all(np.isfinite(v) for v in changes.values() if isinstance(v, float)):
-        raise EdmError(ErrorCode.INVALID_REQUEST, "electrode design values must be finite numbers")
-    return replace(base, **changes)
-
 
 def plan_options(settings, default_budget):
     """PlannerSettings message -> PlanOptions (NaN / 0 / empty take the defaults)."""
