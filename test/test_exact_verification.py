@@ -115,3 +115,34 @@ def test_checker_exact_method_with_the_field_and_its_closest_points(default, fie
     pairs = with_field.closest
     np.testing.assert_allclose(np.linalg.norm(pairs[:, :, 0] - pairs[:, :, 1], axis=2),
                                np.abs(with_field.clearances), atol=1e-9)
+
+
+def test_side_test_is_the_sign_of_the_exact_wall_distance(default, field):
+    e = default.electrodes[0]
+    pts = np.concatenate([field.error_sample_points(300, seed=7),           # -0.5 ... 2 mm from the walls, edges
+                          transform_points(near(e.final_pose, 1, seed=6, shift=0.3), e.mesh.vertices[::7])[0]])
+    behind = field.behind_walls(pts)
+    d = field.exact_blade_distances(pts)
+    np.testing.assert_array_equal(behind, np.signbit(d))
+    assert behind.any(axis=0).all() and (~behind).any(axis=0).all()
+    k = 5
+    turned = pts @ rotation_about_x(k * default.blisk.pitch)[:3, :3].T
+    np.testing.assert_array_equal(field.behind_walls(turned, k), behind)
+
+
+def test_verify_poses_is_the_minimum_over_every_pose_and_vertex(default, field):
+    from edm_planner.planning.export import verify_poses
+
+    e = default.electrodes[0]
+    pts = np.asarray(e.mesh.vertices)
+    poses = np.concatenate([e.final_pose[None], near(e.final_pose, 3, seed=1),
+                            near(e.final_pose, 2, seed=2, shift=0.15), shifted(e.final_pose, [-25.0, 0, 0])[None]])
+    check = verify_poses(poses, pts, 0, default.blisk, field)
+    per_pose, arg, _ = field.exact_pose_clearances(poses, pts)        # exact per pose (tested against brute force)
+    got = np.array([check.min_clearance[s] for s in ("suction", "pressure", "hub", "shroud")])
+    np.testing.assert_allclose(got, per_pose.min(axis=0), rtol=0, atol=1e-12)
+    for j, s in enumerate(("suction", "pressure", "hub", "shroud")):
+        t, k = check.argmin[s]
+        assert per_pose[t, j] == pytest.approx(got[j], abs=1e-12)
+    assert not check.passed and "hub clearance" in check.message        # the shifted pose is in the hub
+    assert check.exact_evaluations < 0.5 * len(poses) * len(pts)         # pruned, even where faces parallel walls
