@@ -15,8 +15,16 @@ KD-tree queries limited to one thread for every figure):
   electrode points under some of those poses and on fresh random points near
   the surfaces, next to the exposed ``error_bound``.
 
+``bench_verify_plan(geometry)`` measures the exact verification of a whole
+densely sampled plan (issue 3): the rear electrode of a front/rear split
+planned on the default blisk with samples close enough for at least 10^4 of
+them, every electrode vertex at every sample checked by
+:func:`~.planning.export.verify_poses` (exact minimum clearance per surface),
+on all of numba's threads and on one; and the same on the plan at the
+default sample spacing, and the whole re-check of its export directory.
+
 Every figure is a plain JSON number; its unit is in its key.
-Usage: ``python -m edm_planner.bench_interference [--config FILE] [--out FILE]``.
+Usage: ``python -m edm_planner.bench_interference [--config FILE] [--out FILE] [--no-verify-plan]``.
 """
 
 import argparse
@@ -172,19 +180,117 @@ def bench_fast(blisk, electrode, spacing=0.1, n_poses=1000, seed=0):
         numba.set_num_threads(threads)
 
 
+def _plan_rear(geometry, field, sample_spacing):
+    """The rear electrode of a front/rear split (h = 0.03 rad, radial reduction 3 mm) in channel 0: 5 axes,
+    step 0.1 mm, exit downstream (as the planning benchmark), samples ``sample_spacing`` mm apart."""
+    from .geometry.electrode import ElectrodeDesign
+    from .planning.plan import PlanOptions
+    from .planning.planner import plan_channel
+    from .planning.search import SearchOptions
+
+    design = ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, split="front_rear",
+                             split_overlap=1.0)
+    opts = PlanOptions(search=SearchOptions(step=0.1, exit_side="downstream"), sample_spacing=sample_spacing)
+    t = time.perf_counter()
+    plan = plan_channel(geometry, 0, "rear", opts, field=field, design=design)
+    if not plan.success:
+        raise RuntimeError(f"bench_verify_plan: planning failed: {plan.message}")
+    return plan, time.perf_counter() - t
+
+
+def bench_verify_plan(geometry, sample_spacing=0.009, cache_dir=None):
+    """Exact verification of every vertex at every sample of a real plan of at least 10^4 samples.
+
+    Parameters
+    ----------
+    geometry : LoadedGeometry
+        The default blisk.
+    sample_spacing : float
+        Largest vertex move between samples of the dense plan [mm] (0.009: 10509 samples).
+    cache_dir : str, optional
+        Distance field cache (built in a temporary directory when not given).
+
+    Returns
+    -------
+    dict
+        JSON-serialisable figures, units in the keys; ``exact_verify_plan_10000_samples_s`` is the time of
+        :func:`~.planning.export.verify_poses` on all threads, without the field's load (given separately).
+    """
+    from .planning.export import verify_exported_plan, verify_poses, write_plan
+
+    b = geometry.blisk
+    threads = numba.get_num_threads()
+    with tempfile.TemporaryDirectory() as tmp:
+        cache = cache_dir or tmp
+        FastChannelField(b, spacing=0.1, cache_dir=cache, cache_key=geometry.geometry_id)    # built or loaded
+        t = time.perf_counter()
+        field = FastChannelField(b, spacing=0.1, cache_dir=cache, cache_key=geometry.geometry_id)
+        load = time.perf_counter() - t
+        dense, planning = _plan_rear(geometry, field, sample_spacing)
+        default, _ = _plan_rear(geometry, field, 0.05)
+        V = dense.electrode_mesh.vertices
+        verify_poses(dense.poses[-3:], V[:20], 0, b, field)                          # numba warm-up
+        t = time.perf_counter()
+        check = verify_poses(dense.poses, V, 0, b, field)
+        spent = time.perf_counter() - t
+        numba.set_num_threads(1)
+        try:
+            t = time.perf_counter()
+            one = verify_poses(dense.poses, V, 0, b, field, threads=1)
+            spent_one = time.perf_counter() - t
+        finally:
+            numba.set_num_threads(threads)
+        t = time.perf_counter()
+        small = verify_poses(default.poses, default.electrode_mesh.vertices, 0, b, field)
+        spent_default = time.perf_counter() - t
+        write_plan(dense, pathlib.Path(tmp) / "plan", b)
+        t = time.perf_counter()
+        exported = verify_exported_plan(pathlib.Path(tmp) / "plan", b, field=field, geometry_id=geometry.geometry_id)
+        spent_export = time.perf_counter() - t
+    if one.min_clearance != check.min_clearance or exported.min_clearance != check.min_clearance:
+        _log.warning("bench_verify_plan: the minima depend on the thread count or the export")
+    return {
+        "exact_verify_plan_10000_samples_s": round(spent, 2),
+        "exact_verify_plan_10000_samples_1_thread_s": round(spent_one, 2),
+        "exact_verify_plan_10000_samples_export_s": round(spent_export, 2),
+        "exact_verify_plan_threads": threads,
+        "exact_verify_plan_samples": check.samples,
+        "exact_verify_plan_vertices": check.vertices,
+        "exact_verify_plan_vertex_positions": check.samples * check.vertices,
+        "exact_verify_plan_exact_evaluations": check.exact_evaluations,
+        "exact_verify_plan_exact_solves_by_surface": check.exact_by_surface,
+        "exact_verify_plan_side_test_anchor_samples": check.anchor_samples,
+        "exact_verify_plan_min_clearance_mm": check.min_clearance,
+        "exact_verify_plan_argmin_sample_vertex": {k: list(v) for k, v in check.argmin.items()},
+        "exact_verify_plan_max_vertex_step_mm": round(check.max_vertex_step, 6),
+        "exact_verify_plan_passed": check.passed and exported.passed,
+        "exact_verify_plan_sample_spacing_mm": sample_spacing,
+        "exact_verify_plan_planning_s": round(planning, 2),
+        "exact_verify_plan_field_load_s": round(load, 2),
+        "exact_verify_default_spacing_plan_samples": small.samples,
+        "exact_verify_default_spacing_plan_s": round(spent_default, 2),
+        "exact_verify_default_spacing_plan_exact_evaluations": small.exact_evaluations,
+        "exact_verify_default_spacing_plan_min_clearance_mm": small.min_clearance,
+    }
+
+
 def main(argv=None):
-    """Run :func:`bench_fast` on a geometry and write the figures as JSON."""
+    """Run :func:`bench_fast` and :func:`bench_verify_plan` on a geometry and write the figures as JSON."""
     from .geometry.loader import load_geometry
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default=str(CONFIG / "default_blisk.yaml"))
     parser.add_argument("--spacing", type=float, default=0.1)
     parser.add_argument("--out", default="out/bench_interference.json")
+    parser.add_argument("--no-verify-plan", action="store_true", help="skip bench_verify_plan")
+    parser.add_argument("--cache-dir", default=None, help="distance field cache for bench_verify_plan")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     g = load_geometry(args.config)
     result = {"geometry": g.blisk.name or args.config,
               **bench_fast(g.blisk, g.electrodes[0], spacing=args.spacing)}
+    if not args.no_verify_plan:
+        result.update(bench_verify_plan(g, cache_dir=args.cache_dir))
     out = pathlib.Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")
