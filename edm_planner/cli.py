@@ -73,6 +73,7 @@ def _parser():
     c.add_argument("plan_dir", metavar="DIR")
     c.add_argument("--geometry", required=True, metavar="FILE.yaml", help="the geometry the plan was made for")
     c.add_argument("--threshold", type=float, default=0.0, metavar="MM", help="smallest clearance accepted")
+    c.add_argument("--cache-dir", default=DEFAULT_CACHE, metavar="DIR", help="distance field cache")
     _progress_argument(c)
     c.add_argument("-v", "--verbose", action="store_true")
     t = sub.add_parser("plot", help="pictures of an exported plan: axis curves and the channel view")
@@ -153,7 +154,7 @@ def _check(args, out, err):
                                                   f"{args.geometry} is {geometry.geometry_id[:12]}")
     progress = _Progress(err, args.progress)
     check = verify_exported_plan(args.plan_dir, geometry.blisk, threshold=args.threshold,
-                                 geometry_id=geometry.geometry_id, progress=progress)
+                                 geometry_id=geometry.geometry_id, progress=progress, cache_dir=args.cache_dir)
     progress.close()
     clear = ", ".join(f"{s} {v:.4f}" for s, v in check.min_clearance.items())
     print(f"min clearance [mm]: {clear}\nlargest vertex step {check.max_vertex_step:.4f} mm; "
