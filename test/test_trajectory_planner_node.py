@@ -41,7 +41,9 @@ def system(tmp_path_factory, field_cache):
     ros.add(GeometryLoaderNode(context=ros.context))
     ros.add(TrajectoryPlannerNode(context=ros.context, parameter_overrides=[
         Parameter("cache_dir", value=str(cache)), Parameter("export_dir", value=str(exports)),
-        Parameter("unknown_geometry_wait", value=20.0)]))
+        Parameter("unknown_geometry_wait", value=20.0),
+        # a store of this module's own: the first request must plan (other modules plan the same channel)
+        Parameter("plan_store", value=str(tmp_path_factory.mktemp("planner_store")))]))
     client = ros.add(Node("planner_client", context=ros.context))
     geometries, plans, progress = [], [], []
     ready = threading.Event()

@@ -124,7 +124,11 @@ def run(out_dir, channel, bringup, timeout=600.0):
     from ..planning.export import read_plan
 
     share = pathlib.Path(sys.prefix) / "share" / "edm_planner" / "config"
-    rclpy.init()
+    from rclpy.signals import SignalHandlerOptions
+
+    # Ctrl-C must reach the demo as KeyboardInterrupt (stop the nodes, exit 130), not shut rclpy down
+    # under a service call in flight (rclpy's own handler), which would read as a failed step
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("edm_demo_cell_controller")
     received = []
     got = threading.Event()
