@@ -209,6 +209,10 @@ def main(argv=None):
     parser.add_argument("--out", default="out/demo", help="output directory")
     parser.add_argument("--channel", type=int, default=0)
     args = parser.parse_args(argv)
+    # Ctrl-C and kill stop the nodes too: raise KeyboardInterrupt here even when the demo was started
+    # with SIGINT ignored (a background job of a non-interactive shell inherits SIG_IGN)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 80))
     out = pathlib.Path(args.out).resolve()
