@@ -305,12 +305,7 @@ class TrajectoryPlannerNode(Node):
         gid = prepared.geometry.geometry_id
         options = roughing_options(request)
         plan_id = roughing_plan_id(gid, request.channel, options)
-        stored, note = None, ""
-        if self.store is not None:
-            try:
-                stored = self.store.get(plan_id)
-            except PlanStoreError as exc:
-                self.get_logger().error(f"plan store: {exc.message}; planning anew")
+        stored, note = self._lookup(plan_id), ""
         if stored is None:
             def progress(stage, fraction, nodes, reference, message):
                 self.progress_pub.publish(PlanProgress(
@@ -333,15 +328,19 @@ class TrajectoryPlannerNode(Node):
         self.get_logger().info(f"roughing plan {plan_id}: {response.message}")
 
     # -- the plan store ---------------------------------------------------------------------
-    def _stored(self, key):
-        """The stored plan of an equal earlier request, or None (also when the store cannot be read)."""
+    def _lookup(self, key):
+        """The record stored for a request key, or None (also when the store cannot be read)."""
         if self.store is None:
             return None
         try:
-            stored = self.store.find(key)
+            return self.store.find(key)
         except PlanStoreError as exc:
             self.get_logger().error(f"plan store: {exc.message}; planning anew")
             return None
+
+    def _stored(self, key):
+        """The stored plan of an equal earlier request, or None."""
+        stored = self._lookup(key)
         if stored is None:
             return None
         plan = stored_to_plan(stored)
