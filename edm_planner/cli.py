@@ -269,6 +269,8 @@ def _plan(args, out, err):
         raise EdmError(ErrorCode.FILE_ERROR, f"--cache-dir {args.cache_dir}: {exc}") from None
     design = _design(args, geometry.design)
     store = open_store(args.store)
+    if design is None and not args.electrode and not geometry.design_given and not args.size_electrode:
+        return _plan_set(args, geometry, options, store, progress, out)
     key = request_key(geometry.geometry_id, args.channel, args.electrode, options, design)
     stored = None if (store is None or args.replan) else store.find(key)
     if stored is not None:
@@ -296,6 +298,44 @@ def _plan(args, out, err):
                                          f"--replan plans anew)" if stored is not None else
                                          f"\nkept in the plan store {store.path}" if store is not None else ""),
           file=out)
+    return 0
+
+
+def _plan_set(args, geometry, options, store, progress, out):
+    """No design named by the file or the command line: design the channel's electrode set."""
+    from .interference.fast import FastChannelField
+    from .machining.electrode_set import SetDesigner, SetOptions, write_set
+
+    progress("field", 0.0, 0, 0.0, "distance field")
+    field = FastChannelField(geometry.blisk, spacing=0.1, cache_dir=args.cache_dir, cache_key=geometry.geometry_id)
+
+    def on_set(stage, fraction, message):
+        progress(stage, fraction, 0, 0.0, message)
+
+    designer = SetDesigner(geometry, field, options, SetOptions(time_budget=max(args.time_budget, 60.0) * 15),
+                           progress=on_set)
+    result = designer.design(args.channel)
+    path = write_set(result, args.out, geometry.blisk, store)
+    progress.close()
+    lines = [f"electrode set of channel {args.channel}: {result.message}",
+             f"designed in {result.planning_time:.1f} s; candidates:"]
+    for c in result.candidates:
+        lines.append(f"  {c.name:<20} {c.status:<11} {c.reason[:160]}")
+    if result.chosen is not None:
+        for p in result.chosen.pieces:
+            d, r = p.design, p.cycle.reach
+            lines.append(f"  electrode {p.label}: plan {p.plan.plan_id}, h {d.circumferential_reduction:.4f} rad, "
+                         f"radial reduction {d.radial_reduction:.3f} mm (radial reach {max(r.radial_reach, default=0):.3f} mm), "
+                         f"cycle {len(p.cycle.samples)} samples in {len(p.cycle.legs)} legs")
+        rep = result.chosen.removal
+        lines.append(f"stock left (exact at wall samples {rep.spacing:.2f} mm apart, tolerance {rep.tolerance:g} mm):")
+        for name, s in rep.surfaces.items():
+            lines.append(f"  {name:<9} max {s.stock_max:8.4f} mm  mean {s.stock_mean:7.4f} mm  "
+                         f"{100 * s.area_fraction_above_tolerance:6.2f} % of the area above  overcut {s.overcut_max:.4f} mm")
+    lines.append(f"written to {path.parent} (set.json, stock.png, one export per electrode)")
+    print("\n".join(lines), file=out)
+    if result.chosen is None:
+        raise EdmError(ErrorCode.INFEASIBLE, result.message)
     return 0
 
 

@@ -87,6 +87,8 @@ class LoadedGeometry:
     electrodes: list
     source: str = ""
     _summary: dict = field(default=None, repr=False)
+    #: the file has an ``electrode:`` section; without one the planner designs the electrode set itself
+    design_given: bool = True
 
     def electrode(self, electrode_id=""):
         """The electrode with this id ('' for the first)."""
@@ -225,7 +227,8 @@ def build_geometry(doc, files, source=""):
     digest = hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode())
     for fname, h in files.hashes:
         digest.update(f"\0{fname}\0{h}".encode())
-    return LoadedGeometry(digest.hexdigest(), blisk, design, electrodes, source)
+    return LoadedGeometry(digest.hexdigest(), blisk, design, electrodes, source,
+                          design_given=doc.get("electrode") is not None)
 
 
 def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None):

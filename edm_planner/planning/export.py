@@ -60,7 +60,8 @@ FRAME = {
 AXES_CONVENTION = ("machine axis values measured from the electrode's final machining pose in channel 0; "
                    "pose = Rx(A) . T(X, Y, Z) . T_final . Rz(C) (. Ry(B)), A includes channel * pitch "
                    "(fixed at channel * pitch on a 4-axis machine)")
-FILES = {"plan": "plan.json", "electrode": "electrode.stl", "workpiece": "workpiece.stl", "axes": "axes.csv"}
+FILES = {"plan": "plan.json", "electrode": "electrode.stl", "workpiece": "workpiece.stl", "axes": "axes.csv",
+         "cycle": "cycle.csv"}
 
 #: largest move of any electrode vertex between consecutive samples that format 1 allows [mm]
 MAX_VERTEX_STEP = 0.05
@@ -116,6 +117,19 @@ def _axes_csv(axis_names, samples):
     for i, row in enumerate(samples):
         w.writerow([i] + [repr(float(v)) for v in row])     # repr: shortest digits that round-trip
     return buf.getvalue()
+
+
+def _cycle_csv(axis_names, cycle):
+    """The whole machining cycle, one row per sample, with its phase and leg (rest at every leg's ends)."""
+    units = ",".join(f"{n}_{AXIS_UNITS[n]}" for n in axis_names)
+    rows = [f"phase,leg,{units}"]
+    for i, (phase, label, a, b) in enumerate(cycle.leg_ranges):
+        leg = cycle.legs[i].samples
+        for j, q in enumerate(leg):
+            if i and j == 0:
+                continue                  # the rest sample shared with the previous leg
+            rows.append(f"{phase},{i}," + ",".join(repr(float(v)) for v in q))
+    return "\n".join(rows) + "\n"
 
 
 def write_plan(plan, out_dir, blisk, workpiece_resolution=0.5):
@@ -207,6 +221,13 @@ def write_plan(plan, out_dir, blisk, workpiece_resolution=0.5):
                 "axes": {"name": FILES["axes"], "sha256": _sha256(axes)},
             },
         }
+        if getattr(plan, "cycle", None) is not None:
+            cycle_file = out / FILES["cycle"]
+            _write_atomic(cycle_file, _cycle_csv(names, plan.cycle))
+            doc["cycle"] = json_safe(plan.cycle.to_dict())
+            doc["cycle"]["phases"] = [{"phase": p, "first": a, "last": b} for p, a, b in plan.cycle.phase_ranges]
+            doc["files"]["cycle"] = {"name": FILES["cycle"], "sha256": _sha256(cycle_file),
+                                     "samples": int(len(plan.cycle.samples))}
         path = out / FILES["plan"]
         _write_atomic(path, json.dumps(doc, indent=1, allow_nan=False))
     except OSError as exc:

@@ -104,6 +104,10 @@ class Plan:
     metrics : PlanMetrics
     furthest_node, furthest_reference, blocking_surface, blocking_clearance
         On failure: how far the search got [nodes, mm] and what blocked it [mm].
+    cycle : MachiningCycle or None
+        The whole machining cycle around the feed (approach, feed, process,
+        return, retract; :mod:`edm_planner.machining.cycle`), axis values in
+        the plan's channel; None for a feed-only plan.
     """
 
     plan_id: str
@@ -124,6 +128,7 @@ class Plan:
     furthest_reference: float = 0.0
     blocking_surface: str = ""
     blocking_clearance: float = float("nan")
+    cycle: object = None
 
     @property
     def success(self):

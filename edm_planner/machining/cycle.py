@@ -1,0 +1,358 @@
+"""The full machining cycle of one electrode in one channel: approach, feed, process, return, retract.
+
+A certified feed plan brings the electrode to its machining pose. Copy
+processing (Huang III: "the electrode at the end position rotates a
+corresponding angle around the X axis to remove the material") then brings
+each reduced face to the discharge gap of its wall:
+
+* circumferential: the side faces were rotated about X by h towards the
+  channel middle (Huang's H_h), so an A rotation of -h_left takes the left
+  face back onto the suction wall's gap offset and +h_right the right face
+  onto the pressure wall's -- exactly, since the hub and shroud faces are
+  surfaces of revolution that the rotation keeps at their gap;
+* radial: the shroud face was contracted by the radial reduction, so a
+  translation radially outwards (the electrode frame's Z) brings it back to
+  the shroud's gap offset, as far as the blades' lean lets the side faces
+  follow; the distance reached is the largest certified one, and what it
+  does not reach is named as stock left for another electrode.
+
+Every process, approach and retract leg is a straight line in axis space,
+certified continuously like the feed (:class:`~edm_planner.planning.certify.PathCertifier`)
+with the machining margin: no electrode vertex comes closer to a final
+surface than the discharge gap less the tolerance (closer, the sparks would
+erode the finished wall); the feed (and the return, which runs it
+backwards) carries the planner's certificate, whose margins must be at
+least that machining margin. Approach and retract move along X between the feed's start and a point further out.
+
+Legs are rest to rest (the axes stop where the motion turns back), so the
+axis bridge times each leg on its own and sends the whole cycle in order.
+"""
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from ..interference import SURFACES
+from ..machine.kinematics import axis_poses
+from ..planning.certify import PathCertifier
+
+_log = logging.getLogger(__name__)
+
+PHASES = ("approach", "feed", "process", "return", "retract")
+
+
+@dataclass(frozen=True)
+class CycleOptions:
+    """Settings of the machining cycle (mm, rad).
+
+    Attributes
+    ----------
+    tolerance : float
+        How far below the discharge gap an electrode vertex may come to a final
+        surface during processing (the overcut tolerance) [mm].
+    approach_distance : float
+        Length of the approach and retract moves along X beyond the feed's start [mm].
+    radial_process : bool
+        Take the radial reduction back by a radial move (where the blades let it).
+    radial_resolution : float
+        Bisection resolution of the radial reach [mm].
+    sample_spacing : float
+        Largest move of any electrode vertex between consecutive samples of a leg [mm].
+    """
+
+    tolerance: float = 0.02
+    approach_distance: float = 5.0
+    radial_process: bool = True
+    radial_resolution: float = 0.01
+    sample_spacing: float = 0.05
+
+    def __post_init__(self):
+        for name in ("tolerance", "approach_distance", "radial_resolution", "sample_spacing"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v <= 0:
+                raise ValueError(f"{name} must be a positive number [mm], got {v!r}")
+
+
+@dataclass
+class Leg:
+    """One rest-to-rest move of the cycle.
+
+    Attributes
+    ----------
+    phase : str
+        One of PHASES.
+    label : str
+        What the leg does (for the NC program's comments and the logs).
+    samples : (n, k) float
+        Axis values, first and last at rest [mm, rad].
+    min_clearance : (4,) float
+        Certified lower bound of the per-surface clearance along the leg [mm] (NaN: not certified here).
+    """
+
+    phase: str
+    label: str
+    samples: np.ndarray
+    min_clearance: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
+
+
+@dataclass
+class ProcessReach:
+    """What copy processing achieves for one electrode (mm, rad).
+
+    ``rotation_*`` are the A rotations done towards each wall (0: that wall is
+    not this electrode's), ``radial_reach`` the radial move achieved against
+    the ``radial_reduction`` asked for at each rotation (A = 0 first), and
+    ``radial_stock`` what is left on the shroud for another electrode to take.
+    """
+
+    rotation_suction: float = 0.0
+    rotation_pressure: float = 0.0
+    radial_reduction: float = 0.0
+    radial_reach: tuple = ()
+    radial_stock: float = 0.0
+    axes_without_a: bool = False
+
+    def to_dict(self):
+        return {"rotation_suction_rad": self.rotation_suction, "rotation_pressure_rad": self.rotation_pressure,
+                "radial_reduction_mm": self.radial_reduction, "radial_reach_mm": list(self.radial_reach),
+                "radial_stock_mm": self.radial_stock, "axes_without_a": self.axes_without_a}
+
+
+@dataclass
+class MachiningCycle:
+    """The whole cycle of one electrode: legs in order, each certified.
+
+    Attributes
+    ----------
+    axis_names : tuple of str
+    legs : list of Leg
+    reach : ProcessReach
+    margin : float
+        The machining margin every process leg was certified with (gap - tolerance) [mm].
+    certified : bool
+        Every leg certified; False with ``message`` saying where and why.
+    message : str
+    """
+
+    axis_names: tuple
+    legs: list
+    reach: ProcessReach
+    margin: float
+    certified: bool = True
+    message: str = ""
+
+    @property
+    def samples(self):
+        """(N, k) axis values of the whole cycle; the shared rest sample between legs appears once."""
+        parts = [self.legs[0].samples] + [leg.samples[1:] for leg in self.legs[1:]]
+        return np.vstack(parts)
+
+    @property
+    def leg_ranges(self):
+        """[(phase, label, first, last)] sample indices of each leg in :attr:`samples` (inclusive)."""
+        out, start = [], 0
+        for leg in self.legs:
+            stop = start + len(leg.samples) - 1
+            out.append((leg.phase, leg.label, start, stop))
+            start = stop
+        return out
+
+    @property
+    def phase_ranges(self):
+        """[(phase, first, last)]: consecutive legs of the same phase merged."""
+        out = []
+        for phase, _, a, b in self.leg_ranges:
+            if out and out[-1][0] == phase:
+                out[-1] = (phase, out[-1][1], b)
+            else:
+                out.append((phase, a, b))
+        return out
+
+    def min_clearance(self, phase=None):
+        """(4,) certified lower bound per surface over the legs (of one phase) [mm]."""
+        rows = [leg.min_clearance for leg in self.legs if phase is None or leg.phase == phase]
+        return np.nanmin(np.vstack(rows), axis=0) if rows else np.full(4, np.nan)
+
+    def to_dict(self):
+        return {"axis_names": list(self.axis_names), "margin_mm": self.margin, "certified": self.certified,
+                "message": self.message, "reach": self.reach.to_dict(),
+                "legs": [{"phase": p, "label": lab, "first": a, "last": b,
+                          "min_clearance_lower_bound_mm": {s: _f(v) for s, v in zip(SURFACES, leg.min_clearance)}}
+                         for (p, lab, a, b), leg in zip(self.leg_ranges, self.legs)]}
+
+
+def _f(v):
+    return None if not np.isfinite(v) else round(float(v), 6)
+
+
+def electrode_walls(electrode_id):
+    """Which blade walls an electrode's side faces machine: left/right halves take one each."""
+    return {"left": ("suction",), "right": ("pressure",)}.get(electrode_id, ("suction", "pressure"))
+
+
+def side_rotations(design, electrode_id):
+    """A rotations (rad) that take the reduced side faces onto their walls: {'suction': -h_l, 'pressure': +h_r}."""
+    h = float(design.circumferential_reduction)
+    left = {"left": h, "right": 0.0}.get(design.reduction_side, 0.5 * h)
+    right = {"left": 0.0, "right": h}.get(design.reduction_side, 0.5 * h)
+    out = {}
+    for wall in electrode_walls(electrode_id):
+        angle = -left if wall == "suction" else right
+        if abs(angle) > 0:
+            out[wall] = angle
+    return out
+
+
+class CycleBuilder:
+    """Builds and certifies the machining cycle of one electrode (channel 0 axis values).
+
+    Parameters
+    ----------
+    field : FastChannelField
+    electrode : Electrode
+    design : ElectrodeDesign
+    axis_names : tuple of str
+    options : CycleOptions
+    """
+
+    def __init__(self, field, electrode, design, axis_names, options=None):
+        self.options = options or CycleOptions()
+        self.design = design
+        self.electrode = electrode
+        self.axis_names = tuple(axis_names)
+        self.margin = float(design.discharge_gap) - self.options.tolerance
+        margins = np.full(4, self.margin)
+        self.certifier = PathCertifier(
+            field, electrode.mesh.vertices, lambda q: axis_poses(electrode.final_pose, self.axis_names, q),
+            self.axis_names, margins, electrode.final_pose[:3, 3], allowance=float(design.chord_tolerance))
+
+    # -- one straight leg ------------------------------------------------------------------
+    def leg(self, phase, label, q0, q1):
+        """A straight leg q0 -> q1, certified and sampled; (Leg, Certificate)."""
+        q0, q1 = np.asarray(q0, float), np.asarray(q1, float)
+        spline = CubicSpline([0.0, 1.0], np.vstack([q0, q1]))          # two points: a straight line
+        cert = self.certifier.certify(spline, 0.0, 1.0)
+        params, _ = self.certifier.sample(spline, 0.0, 1.0, self.options.sample_spacing)
+        samples = spline(params)
+        samples[0], samples[-1] = q0, q1
+        low = cert.clearances.min(axis=0) if len(cert.clearances) else np.full(4, np.nan)
+        return Leg(phase, label, samples, low), cert
+
+    # -- copy processing ---------------------------------------------------------------------
+    def radial_reach(self, q_base, limit):
+        """Largest certified radial move (<= limit) from q_base, by bisection; (reach, leg out)."""
+        if limit <= 0 or not self.options.radial_process:
+            return 0.0, None
+        direction = self._radial_axes()
+        leg, cert = self.leg("process", "radial out", q_base, q_base + limit * direction)
+        if cert.certified:
+            return float(limit), leg
+        lo, hi, best = 0.0, float(limit), None
+        while hi - lo > self.options.radial_resolution:
+            mid = 0.5 * (lo + hi)
+            trial, cert = self.leg("process", "radial out", q_base, q_base + mid * direction)
+            if cert.certified:
+                lo, best = mid, trial
+            else:
+                hi = mid
+        return lo, best
+
+    def _radial_axes(self):
+        """Axis-value direction of a unit move along the electrode frame's Z (radial at its centre)."""
+        d = np.zeros(len(self.axis_names))
+        ez = self.electrode.final_pose[:3, 2]
+        for i, name in enumerate(("X", "Y", "Z")):
+            d[self.axis_names.index(name)] = ez[i]
+        return d
+
+    def process_legs(self, q_final):
+        """Legs of copy processing from the machining pose and back to it; (legs, ProcessReach, failure)."""
+        legs = []
+        reach = ProcessReach(radial_reduction=float(self.design.radial_reduction))
+        has_a = "A" in self.axis_names
+        rotations = side_rotations(self.design, self.electrode.electrode_id)
+        reach.axes_without_a = not has_a and bool(rotations)
+        reaches = []
+
+        def radial_at(q_base, where):
+            r, out = self.radial_reach(q_base, reach.radial_reduction)
+            reaches.append(r)
+            if out is not None:
+                out.label = f"radial out {r:.3f} mm{where}"
+                back, _ = self.leg("process", f"radial back{where}", out.samples[-1], q_base)
+                back.min_clearance = out.min_clearance.copy()
+                legs.extend([out, back])
+
+        radial_at(q_final, "")
+        for wall, angle in rotations.items():
+            if not has_a:
+                break
+            q_side = q_final.copy()
+            q_side[self.axis_names.index("A")] += angle
+            leg, cert = self.leg("process", f"A {angle:+.4f} rad to the {wall} wall", q_final, q_side)
+            if not cert.certified:
+                return legs, reach, (f"copy processing towards the {wall} wall is not certified: "
+                                     f"{cert.failure_surface} clearance may fall {cert.penetration_bound:.4f} mm "
+                                     f"below the machining margin {self.margin:.3f} mm")
+            legs.append(leg)
+            setattr(reach, f"rotation_{wall}", float(angle))
+            radial_at(q_side, f" at the {wall} wall")
+            back, _ = self.leg("process", f"A back from the {wall} wall", q_side, q_final)
+            back.min_clearance = leg.min_clearance.copy()
+            legs.append(back)
+        reach.radial_reach = tuple(reaches)
+        reach.radial_stock = float(max(0.0, reach.radial_reduction - max(reaches, default=0.0)))
+        return legs, reach, None
+
+    # -- the whole cycle -----------------------------------------------------------------------
+    def build(self, feed_samples, feed_margin, feed_clearance):
+        """The cycle around a certified feed.
+
+        Parameters
+        ----------
+        feed_samples : (n, k) float
+            Channel-0 axis values, feed order, last = the machining pose.
+        feed_margin : float
+            The smallest margin the feed was certified with (continuously, by the planner) [mm].
+        feed_clearance : (4,) float
+            The feed certificate's per-surface clearance lower bounds [mm].
+        """
+        feed_samples = np.asarray(feed_samples, float)
+        feed_clearance = np.asarray(feed_clearance, float)
+        q_start, q_final = feed_samples[0], feed_samples[-1].copy()
+        ix = self.axis_names.index("X")
+        outwards = np.sign(q_start[ix] - q_final[ix]) or 1.0
+        q_home = q_start.copy()
+        q_home[ix] += outwards * self.options.approach_distance
+        approach, c1 = self.leg("approach", "approach along X", q_home, q_start)
+        feed = Leg("feed", "feed", feed_samples, feed_clearance.copy())
+        process, reach, failure = self.process_legs(q_final)
+        back = Leg("return", "return (the feed reversed)", feed_samples[::-1].copy(), feed_clearance.copy())
+        retract, _ = self.leg("retract", "retract along X", q_start, q_home)
+        retract.min_clearance = approach.min_clearance.copy()
+        legs = [approach, feed] + process + [back, retract]
+        cycle = MachiningCycle(self.axis_names, legs, reach, self.margin)
+        problems = []
+        if failure:
+            problems.append(failure)
+        if not c1.certified:
+            problems.append(f"the approach is not certified ({c1.failure_surface})")
+        if feed_margin < self.margin - 1e-12:
+            problems.append(f"the feed was certified with a margin of {feed_margin:.3f} mm, less than the machining "
+                            f"margin {self.margin:.3f} mm (discharge gap less the tolerance): it may overcut")
+        if reach.axes_without_a:
+            problems.append("no A axis: the circumferential reduction cannot be taken by copy processing")
+        cycle.certified = not problems
+        cycle.message = "; ".join(problems) if problems else (
+            f"{len(legs)} legs certified with the machining margin {self.margin:.3f} mm")
+        return cycle
+
+
+def shift_channel(samples, axis_names, channel, pitch):
+    """Axis values moved from channel 0 to channel k (A += k pitch; 4 axes index outside the path)."""
+    out = np.array(samples, dtype=float, copy=True)
+    if channel and "A" in axis_names:
+        out[:, list(axis_names).index("A")] += channel * pitch
+    return out

@@ -1,0 +1,439 @@
+"""Automatic electrode set: the fewest electrodes that machine a channel to its tolerance, with proof.
+
+When neither the request nor the geometry file names an electrode design,
+the set is designed here (Huang II: reduction and division; Liu 2024 4.1:
+left/right split). Candidates, in order of electrode count:
+
+1. one electrode (no split);
+2. front/rear (Huang) and left/right (Liu), each with an overlap;
+3. three axial pieces (front, middle, rear) where two are not enough.
+
+For every piece of a candidate the radial reduction and then the
+circumferential reduction are sized by bisection, each step a certified
+plan with the machining margin (discharge gap less the tolerance): the
+smallest radial reduction (least shroud stock) first, then the smallest h
+(the thickest electrode). Each piece's full cycle (approach, feed, copy
+processing, return, retract; :mod:`.cycle`) is built and certified, and the
+candidate's swept electrodes go through the material-removal simulation
+(:mod:`.removal`). A candidate is accepted when every wall has stock above
+the tolerance on at most ``max_area_above`` of its area and no overcut
+beyond the tolerance. Among the accepted candidates with the fewest
+electrodes the thickest set (largest electrode volume) wins, then the
+shortest cycle. Every candidate tried is reported with why it was rejected.
+"""
+
+import logging
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..errors import EdmError, ErrorCode
+from ..geometry.electrode import ElectrodeDesign, design_electrodes
+from ..geometry.frames import rotation_about_x
+from ..machine.kinematics import axis_poses
+from ..planning.plan import PlanOptions
+from ..planning.planner import plan_channel, plan_id_for
+from .cycle import CycleBuilder, CycleOptions, shift_channel
+
+_log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SetOptions:
+    """Settings of the automatic electrode set (mm, rad, s).
+
+    Attributes
+    ----------
+    tolerance : float
+        Stock and overcut tolerance [mm]; also the machining margin's allowance below the gap.
+    max_area_above : float
+        Largest share of a wall's area allowed to keep stock above the tolerance.
+    overlap : float
+        Overlap of split electrodes [mm].
+    radial_start : float
+        First radial reduction tried, as a share of the smallest channel height.
+    radial_resolution, circumferential_resolution : float
+        Bisection resolutions [mm], [rad].
+    removal_spacing : float
+        Wall sample spacing of the removal simulation [mm].
+    time_budget : float
+        For the whole set [s].
+    max_electrodes : int
+        Candidates with more electrodes are not tried.
+    """
+
+    tolerance: float = 0.02
+    max_area_above: float = 0.01
+    overlap: float = 1.0
+    radial_start: float = 0.15
+    radial_resolution: float = 0.25
+    circumferential_resolution: float = 0.004
+    removal_spacing: float = 0.25
+    time_budget: float = 900.0
+    max_electrodes: int = 3
+
+    def __post_init__(self):
+        for name in ("tolerance", "overlap", "radial_start", "radial_resolution", "circumferential_resolution",
+                     "removal_spacing", "time_budget"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v <= 0:
+                raise ValueError(f"{name} must be a positive number, got {v!r}")
+        if not 0 <= self.max_area_above < 1:
+            raise ValueError(f"max_area_above must lie in [0, 1), got {self.max_area_above!r}")
+        if int(self.max_electrodes) < 1:
+            raise ValueError(f"max_electrodes must be >= 1, got {self.max_electrodes!r}")
+
+
+@dataclass
+class Piece:
+    """One electrode of a candidate set and how it was sized and planned."""
+
+    label: str                       # front, rear, left, right, middle, main
+    electrode_id: str                # the id within its design
+    design: ElectrodeDesign
+    plan: object = None              # Plan (channel 0 while designing)
+    cycle: object = None             # MachiningCycle (channel-0 axis values)
+    tried: list = field(default_factory=list)   # [(h, radial, result)]
+    volume: float = 0.0              # electrode volume [mm^3]
+
+    def to_dict(self):
+        d = {"label": self.label, "electrode_id": self.electrode_id, "design": self.design.to_dict(),
+             "volume_mm3": round(self.volume, 1),
+             "sizing": [{"circumferential_reduction_rad": round(h, 5), "radial_reduction_mm": round(r, 4),
+                         "result": res} for h, r, res in self.tried]}
+        if self.plan is not None:
+            d["plan_id"] = self.plan.plan_id
+        if self.cycle is not None:
+            d["cycle"] = {"certified": self.cycle.certified, "message": self.cycle.message,
+                          "reach": self.cycle.reach.to_dict(), "samples": int(len(self.cycle.samples))}
+        return d
+
+
+@dataclass
+class Candidate:
+    """A candidate set: its pieces, and whether and why it was accepted or rejected."""
+
+    name: str
+    pieces: list
+    status: str = "not tried"        # accepted, chosen, infeasible, stock left, overcut, not tried, time budget
+    reason: str = ""
+    removal: object = None           # RemovalReport
+    cycle_travel: float = 0.0        # mm of vertex travel over all pieces' cycles
+
+    @property
+    def electrode_count(self):
+        return len(self.pieces)
+
+    @property
+    def volume(self):
+        return float(sum(p.volume for p in self.pieces))
+
+    def to_dict(self):
+        d = {"name": self.name, "electrodes": self.electrode_count, "status": self.status, "reason": self.reason,
+             "electrode_volume_mm3": round(self.volume, 1), "cycle_travel_mm": round(self.cycle_travel, 1),
+             "pieces": [p.to_dict() for p in self.pieces]}
+        if self.removal is not None:
+            d["removal"] = self.removal.to_dict()
+        return d
+
+
+@dataclass
+class ElectrodeSet:
+    """The designed set of a channel, every candidate tried, and the proof of the chosen one."""
+
+    geometry_id: str
+    channel: int
+    candidates: list
+    chosen: Candidate = None
+    planning_time: float = 0.0
+    message: str = ""
+
+    @property
+    def success(self):
+        return self.chosen is not None
+
+    def to_dict(self):
+        return {"geometry_id": self.geometry_id, "channel": self.channel, "success": self.success,
+                "message": self.message, "planning_time_s": round(self.planning_time, 2),
+                "chosen": None if self.chosen is None else self.chosen.name,
+                "candidates": [c.to_dict() for c in self.candidates]}
+
+
+def candidate_sets(blisk, base, options):
+    """The candidates in order of electrode count: (name, [(label, electrode_id, design)])."""
+    ov = options.overlap
+    out = [("one electrode", [("main", "main", replace(base, split="none"))]),
+           ("front/rear", [(lab, lab, replace(base, split="front_rear", split_overlap=ov))
+                           for lab in ("front", "rear")]),
+           ("left/right", [(lab, lab, replace(base, split="left_right", split_overlap=ov))
+                           for lab in ("left", "right")])]
+    fx0, fx1 = blisk.full_span_axial_range
+    inset = 0.005 * (fx1 - fx0)
+    x0, x1 = fx0 + inset, fx1 - inset
+    cuts = np.linspace(x0, x1, 4)
+    ranges = [(x0, cuts[1] + ov / 2), (cuts[1] - ov / 2, cuts[2] + ov / 2), (cuts[2] - ov / 2, x1)]
+    out.append(("three axial pieces", [(lab, "main", replace(base, split="none", axial_range=r))
+                                       for lab, r in zip(("front", "middle", "rear"), ranges)]))
+    return [c for c in out if len(c[1]) <= options.max_electrodes]
+
+
+class SetDesigner:
+    """Designs the electrode set of one channel.
+
+    Parameters
+    ----------
+    geometry : LoadedGeometry
+    field : FastChannelField
+    plan_options : PlanOptions
+        Search settings; the margins are raised to the machining margin.
+    options : SetOptions
+    cycle_options : CycleOptions
+    progress : callable, optional
+        ``progress(stage, fraction, message)``.
+    """
+
+    def __init__(self, geometry, field, plan_options=None, options=None, cycle_options=None, progress=None):
+        self.geometry = geometry
+        self.blisk = geometry.blisk
+        self.field = field
+        self.options = options or SetOptions()
+        self.cycle_options = cycle_options or CycleOptions(tolerance=self.options.tolerance)
+        base = geometry.design
+        self.base = replace(base, circumferential_reduction=0.0, radial_reduction=0.0, reduction_side="both",
+                            axial_range=None)
+        margin = base.discharge_gap - self.options.tolerance
+        if margin <= 0:
+            raise EdmError(ErrorCode.INVALID_REQUEST,
+                           f"the tolerance {self.options.tolerance:g} mm is not below the discharge gap "
+                           f"{base.discharge_gap:g} mm")
+        po = plan_options or PlanOptions()
+        search = replace(po.search, margin_blade=max(po.search.margin_blade, margin),
+                         margin_hub_shroud=max(po.search.margin_hub_shroud, margin))
+        self.plan_options = replace(po, search=search, size_electrode=False)
+        self.progress = progress
+        self.t0 = None
+        b = self.blisk
+        self.h_max = 0.9 * float(np.min(b.pitch - (b.blade.theta_plus - b.blade.theta_minus)))
+        self.r_start = self.options.radial_start * b.channel_height_range[0]
+
+    # -- helpers -----------------------------------------------------------------------------
+    def _report(self, fraction, message):
+        _log.info("electrode set: %s", message)
+        if self.progress is not None:
+            self.progress("electrode set", float(min(fraction, 0.99)), message)
+
+    def _elapsed(self):
+        return time.perf_counter() - self.t0
+
+    def _out_of_time(self):
+        return self._elapsed() > self.options.time_budget
+
+    def _plan(self, piece, h, radial):
+        design = replace(piece.design, circumferential_reduction=float(h), radial_reduction=float(radial))
+        try:
+            plan = plan_channel(self.geometry, 0, piece.electrode_id, self.plan_options, field=self.field,
+                                design=design)
+        except EdmError as e:                     # a reduction that leaves no electrode
+            piece.tried.append((h, radial, f"{e.code.name}: {e.message[:120]}"))
+            return None, design
+        piece.tried.append((h, radial, "certified" if plan.success else f"{plan.error_code.name}: {plan.message[:120]}"))
+        return (plan if plan.success else None), design
+
+    # -- sizing one piece ------------------------------------------------------------------------
+    def size_piece(self, piece):
+        """Smallest radial, then smallest circumferential reduction with a certified plan; False if none."""
+        o = self.options
+        h_hi, r_hi = 0.5 * self.h_max, self.r_start
+        plan, design = self._plan(piece, h_hi, r_hi)
+        if plan is None:
+            h_hi, r_hi = self.h_max, 2.0 * self.r_start
+            plan, design = self._plan(piece, h_hi, r_hi)
+            if plan is None:
+                return False
+        best = (plan, design)
+        lo = 0.0                                   # radial first: the least shroud stock
+        while r_hi - lo > o.radial_resolution and not self._out_of_time():
+            mid = 0.5 * (lo + r_hi)
+            p, d = self._plan(piece, h_hi, mid)
+            if p is None:
+                lo = mid
+            else:
+                r_hi, best = mid, (p, d)
+        lo = 0.0                                   # then the thickest electrode
+        while h_hi - lo > o.circumferential_resolution and not self._out_of_time():
+            mid = 0.5 * (lo + h_hi)
+            p, d = self._plan(piece, mid, r_hi)
+            if p is None:
+                lo = mid
+            else:
+                h_hi, best = mid, (p, d)
+        piece.plan, piece.design = best
+        electrode = self._electrode(piece)
+        piece.volume = float(electrode.mesh.volume)
+        builder = CycleBuilder(self.field, electrode, piece.design, piece.plan.axis_names, self.cycle_options)
+        margin = min(self.plan_options.search.margin_blade, self.plan_options.search.margin_hub_shroud)
+        piece.cycle = builder.build(piece.plan.samples, margin, np.asarray(piece.plan.metrics.min_clearance))
+        return True
+
+    def _electrode(self, piece):
+        for e in design_electrodes(self.blisk, piece.design):
+            if e.electrode_id == piece.electrode_id:
+                return e
+        raise EdmError(ErrorCode.INTERNAL, f"no electrode {piece.electrode_id!r} in its own design")
+
+    # -- the removal proof of a candidate ------------------------------------------------------
+    def sweeps(self, candidate):
+        """(vertices, faces, channel-0 poses of the whole cycle) per piece."""
+        out = []
+        for p in candidate.pieces:
+            mesh = p.plan.electrode_mesh
+            poses = axis_poses(p.plan.final_pose, p.plan.axis_names, p.cycle.samples)
+            out.append((np.asarray(mesh.vertices), np.asarray(mesh.faces), poses))
+        return out
+
+    def prove(self, candidate):
+        from .removal import simulate_removal
+
+        report = simulate_removal(self.blisk, self.sweeps(candidate), self.base.discharge_gap,
+                                  tolerance=self.options.tolerance, spacing=self.options.removal_spacing)
+        candidate.removal = report
+        return report
+
+    # -- the whole design ----------------------------------------------------------------------------
+    def design(self, channel=0):
+        """Design, prove and choose; the chosen pieces' plans and cycles moved to ``channel``."""
+        self.t0 = time.perf_counter()
+        cands = [Candidate(name, [Piece(lab, eid, d) for lab, eid, d in pieces])
+                 for name, pieces in candidate_sets(self.blisk, self.base, self.options)]
+        accepted_count = None
+        for i, cand in enumerate(cands):
+            if accepted_count is not None and cand.electrode_count > accepted_count:
+                cand.status, cand.reason = "not tried", f"a set of {accepted_count} electrode(s) machines the channel"
+                continue
+            if self._out_of_time():
+                cand.status, cand.reason = "time budget", f"the time budget of {self.options.time_budget:g} s was used up"
+                continue
+            self._report(i / len(cands), f"candidate {cand.name}: sizing {cand.electrode_count} electrode(s)")
+            self._evaluate(cand)
+            if cand.status == "accepted":
+                accepted_count = cand.electrode_count
+        accepted = [c for c in cands if c.status == "accepted"]
+        result = ElectrodeSet(self.geometry.geometry_id, int(channel), cands)
+        if accepted:
+            best = min(accepted, key=lambda c: (c.electrode_count, -c.volume, c.cycle_travel))
+            best.status = "chosen"
+            for c in accepted:
+                if c is not best:
+                    c.reason = (f"also machines the channel, but {best.name} has thicker electrodes "
+                                f"({best.volume:.0f} against {c.volume:.0f} mm^3) or a shorter cycle")
+            for p in best.pieces:
+                _move_plan(p.plan, p.cycle, p.design, channel, self.blisk.pitch)
+            result.chosen = best
+            result.message = (f"{best.name}: {best.electrode_count} electrode(s), {best.reason}")
+        else:
+            result.message = "no candidate machines the channel to the tolerance: " + "; ".join(
+                f"{c.name}: {c.status} ({c.reason})" for c in cands)
+        result.planning_time = self._elapsed()
+        self._report(1.0, result.message)
+        return result
+
+    def _evaluate(self, cand):
+        for piece in cand.pieces:
+            if not self.size_piece(piece):
+                last = piece.tried[-1][2] if piece.tried else "not planned"
+                cand.status, cand.reason = "infeasible", f"the {piece.label} electrode has no certified path ({last})"
+                return
+            if not piece.cycle.certified:
+                cand.status, cand.reason = "infeasible", f"the {piece.label} electrode's cycle: {piece.cycle.message}"
+                return
+        cand.cycle_travel = float(sum((len(p.cycle.samples) - 1) * self.cycle_options.sample_spacing
+                                      for p in cand.pieces))
+        report = self.prove(cand)
+        figures = removal_figures(report)
+        worst = max(report.surfaces.values(), key=lambda w: w.area_fraction_above_tolerance)
+        if report.overcut_max > self.options.tolerance:
+            cand.status = "overcut"
+            cand.reason = f"overcut {report.overcut_max:.4f} mm, beyond the tolerance; {figures}"
+        elif worst.area_fraction_above_tolerance > self.options.max_area_above:
+            cand.status = "stock left"
+            cand.reason = (f"{100 * worst.area_fraction_above_tolerance:.2f} % of the {worst.surface} keeps stock "
+                           f"above {self.options.tolerance:g} mm (at most {100 * self.options.max_area_above:g} % "
+                           f"allowed); {figures}")
+        else:
+            cand.status = "accepted"
+            cand.reason = f"machines the channel to {self.options.tolerance:g} mm; {figures}"
+
+
+def removal_figures(report):
+    """One line of the proof's figures: per surface largest / mean stock, share above tolerance, overcut."""
+    return "; ".join(f"{name} stock max {s.stock_max:.3f} mean {s.stock_mean:.4f} mm, "
+                     f"{100 * s.area_fraction_above_tolerance:.2f} % above, overcut {s.overcut_max:.4f} mm"
+                     for name, s in report.surfaces.items())
+
+
+def _move_plan(plan, cycle, design, channel, pitch):
+    """A channel-0 plan and its cycle moved to channel k (the blisk is periodic), with the plan id of channel k."""
+    plan.cycle = cycle
+    if not channel:
+        return plan
+    plan.samples = shift_channel(plan.samples, plan.axis_names, channel, pitch)
+    plan.poses = rotation_about_x(channel * pitch)[None] @ plan.poses
+    for leg in cycle.legs:
+        leg.samples = shift_channel(leg.samples, plan.axis_names, channel, pitch)
+    plan.channel = int(channel)
+    plan.plan_id = plan_id_for(plan.geometry_id, channel, plan.electrode_id, plan.options, design)
+    return plan
+
+
+def write_set(result, out_dir, blisk, store=None):
+    """Write a designed set: one plan export per electrode (with its cycle), set.json and the stock maps.
+
+    Parameters
+    ----------
+    result : ElectrodeSet
+    out_dir : path
+        ``<out>/<label>/`` per electrode (in machining order), ``<out>/set.json``,
+        ``<out>/stock.png`` (the chosen set's stock maps).
+    blisk : Blisk
+    store : PlanStore, optional
+        The chosen pieces' plans (with their cycles) are kept there.
+
+    Returns
+    -------
+    pathlib.Path
+        set.json.
+    """
+    import json
+    import pathlib
+
+    from ..planning.export import json_safe, write_plan
+    from .removal import plot_stock_maps
+
+    out = pathlib.Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise EdmError(ErrorCode.FILE_ERROR, f"cannot write the electrode set to {out}: {exc}") from exc
+    doc = json_safe(result.to_dict())
+    doc["format"] = "edm_planner.electrode_set/1"
+    doc["units"] = {"length": "mm", "angle": "rad", "time": "s"}
+    chosen = result.chosen
+    if chosen is not None:
+        doc["electrodes"] = []
+        for order, piece in enumerate(chosen.pieces):
+            path = write_plan(piece.plan, out / piece.label, blisk)
+            if store is not None:
+                from ..planning.store import plan_to_stored
+                store.put(plan_to_stored(piece.plan))
+            doc["electrodes"].append({"order": order, "label": piece.label, "plan_id": piece.plan.plan_id,
+                                      "export": str(path.parent.relative_to(out))})
+        if chosen.removal is not None:
+            plot_stock_maps(chosen.removal, out / "stock.png")
+            doc["stock_map"] = "stock.png"
+    path = out / "set.json"
+    try:
+        path.write_text(json.dumps(doc, indent=1, allow_nan=False))
+    except OSError as exc:
+        raise EdmError(ErrorCode.FILE_ERROR, f"cannot write {path}: {exc}") from exc
+    return path

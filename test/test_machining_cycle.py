@@ -1,0 +1,211 @@
+"""The machining cycle (copy processing) and the automatic electrode set on the default blisk.
+
+One certified feed of the rear electrode of a front/rear split is planned
+once per module with the machining margin (gap less the tolerance); the
+cycle around it is built, certified, checked against closed forms (the A
+rotation of copy processing lands each side face exactly on its wall's gap
+offset) and made to overcut on purpose.
+"""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from edm_planner.geometry.electrode import ElectrodeDesign, design_electrodes
+from edm_planner.geometry.frames import rotation_about_x
+from edm_planner.geometry.loader import load_geometry
+from edm_planner.interference.fast import FastChannelField
+from edm_planner.machine.kinematics import axis_poses
+from edm_planner.machining.cycle import PHASES, CycleBuilder, CycleOptions, side_rotations
+from edm_planner.machining.electrode_set import Piece, SetDesigner, SetOptions, candidate_sets, write_set
+from edm_planner.machining.removal import simulate_removal
+from edm_planner.planning.plan import PlanOptions
+from edm_planner.planning.planner import plan_channel
+from edm_planner.planning.search import SearchOptions
+
+from conftest import CONFIG
+
+GAP, TOLERANCE = 0.1, 0.02
+MARGIN = GAP - TOLERANCE
+DESIGN = ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, split="front_rear", split_overlap=1.0)
+
+
+@pytest.fixture(scope="module")
+def rear(field_cache):
+    g = load_geometry(CONFIG / "default_blisk.yaml")
+    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache, cache_key=g.geometry_id)
+    electrode = {e.electrode_id: e for e in design_electrodes(g.blisk, DESIGN)}["rear"]
+    opts = PlanOptions(search=SearchOptions(margin_blade=MARGIN, margin_hub_shroud=MARGIN, exit_side="downstream"))
+    plan = plan_channel(g, 0, "rear", opts, field=field, design=DESIGN)
+    assert plan.success, plan.message
+    builder = CycleBuilder(field, electrode, DESIGN, plan.axis_names, CycleOptions(tolerance=TOLERANCE))
+    cycle = builder.build(plan.samples, MARGIN, plan.metrics.min_clearance)
+    return g, field, electrode, plan, builder, cycle
+
+
+def test_the_cycle_runs_every_phase_in_order_and_is_certified(rear):
+    g, field, electrode, plan, builder, cycle = rear
+    assert cycle.certified, cycle.message
+    assert [p for p, _, _ in cycle.phase_ranges] == list(PHASES)
+    samples = cycle.samples
+    # legs meet at rest samples: consecutive legs share their end and start
+    for a, b in zip(cycle.legs[:-1], cycle.legs[1:]):
+        assert np.array_equal(a.samples[-1], b.samples[0])
+    feed = dict((p, (a, b)) for p, a, b in cycle.phase_ranges)["feed"]
+    assert np.array_equal(samples[feed[0]:feed[1] + 1], plan.samples)
+    # the process starts and ends at the machining pose; the return is the feed backwards
+    proc = dict((p, (a, b)) for p, a, b in cycle.phase_ranges)["process"]
+    assert np.allclose(samples[proc[0]], plan.samples[-1]) and np.allclose(samples[proc[1]], plan.samples[-1])
+    ret = dict((p, (a, b)) for p, a, b in cycle.phase_ranges)["return"]
+    assert np.array_equal(samples[ret[0]:ret[1] + 1], plan.samples[::-1])
+    # approach and retract: along X only, starting and ending at the same point outside
+    assert np.array_equal(samples[0], samples[-1])
+    assert abs(samples[0][0] - plan.samples[0][0]) == pytest.approx(CycleOptions().approach_distance)
+    # every process leg keeps the machining margin (certified lower bound)
+    assert np.all(cycle.min_clearance("process") >= MARGIN)
+
+
+def test_copy_processing_rotates_each_side_face_onto_its_wall_gap(rear):
+    """Closed form: the reduction is a rotation about X by h/2 per side, the process rotation undoes it."""
+    g, field, electrode, plan, builder, cycle = rear
+    rot = side_rotations(DESIGN, "rear")
+    assert rot == {"suction": pytest.approx(-0.015), "pressure": pytest.approx(0.015)}
+    assert cycle.reach.rotation_suction == pytest.approx(-0.015)
+    assert cycle.reach.rotation_pressure == pytest.approx(0.015)
+    unreduced = {e.electrode_id: e for e in design_electrodes(g.blisk, replace(DESIGN, circumferential_reduction=0.0))}
+    for wall, angle in rot.items():
+        side = "left" if wall == "suction" else "right"
+        pts = electrode.samples[side] @ electrode.final_pose[:3, :3].T + electrode.final_pose[:3, 3]
+        turned = pts @ rotation_about_x(angle)[:3, :3].T
+        ref = unreduced["rear"]
+        ref_pts = ref.samples[side] @ ref.final_pose[:3, :3].T + ref.final_pose[:3, 3]
+        # same lattice stations: the turned reduced face is the unreduced face (the gap offset of the wall)
+        assert len(turned) == len(ref_pts)
+        assert np.abs(turned - ref_pts).max() < 1e-9
+        # and the field agrees: the wall's clearance is the gap there (within the electrode's chord tolerance)
+        clear = field.exact_blade_distances(turned, 0)[:, 0 if wall == "suction" else 1]
+        assert clear.min() == pytest.approx(GAP, abs=DESIGN.chord_tolerance + 2e-3)
+
+
+def test_the_radial_move_reaches_the_shroud_gap_where_the_blades_allow(rear):
+    g, field, electrode, plan, builder, cycle = rear
+    reach = cycle.reach.radial_reach
+    assert reach[0] == pytest.approx(DESIGN.radial_reduction)            # at A = 0 the whole reduction
+    assert all(0 <= r <= DESIGN.radial_reduction + 1e-12 for r in reach)
+    # the radial direction is the electrode frame's Z: after the move the top face is at the shroud gap
+    q = plan.samples[-1].copy()
+    q[:3] += reach[0] * electrode.final_pose[:3, 2]
+    pose = axis_poses(electrode.final_pose, plan.axis_names, q[None])[0]
+    top = electrode.samples["upper"] @ pose[:3, :3].T + pose[:3, 3]
+    shroud = field.exact_profile_distances(top)[:, 1]
+    assert shroud.min() >= MARGIN
+    assert shroud.min() == pytest.approx(GAP, abs=0.01)
+
+
+def test_a_process_motion_that_overcuts_is_caught(rear):
+    """A rotation beyond the reduction pushes the side face into its wall: not certified."""
+    g, field, electrode, plan, builder, cycle = rear
+    q0 = plan.samples[-1]
+    ia = plan.axis_names.index("A")
+    q1 = q0.copy()
+    q1[ia] -= 0.015 + 0.0005                           # 0.05 mm too far at r = 100 mm
+    leg, cert = builder.leg("process", "too far", q0, q1)
+    assert not cert.certified
+    assert cert.failure_surface == "suction"
+    q1[ia] = q0[ia] - 0.015                            # exactly the reduction: certified
+    leg, cert = builder.leg("process", "exact", q0, q1)
+    assert cert.certified
+    # a radial move past the reduction cuts into the shroud
+    q2 = q0.copy()
+    q2[:3] += (DESIGN.radial_reduction + 0.05) * electrode.final_pose[:3, 2]
+    leg, cert = builder.leg("process", "radial too far", q0, q2)
+    assert not cert.certified and cert.failure_surface in ("shroud", "suction", "pressure")
+
+
+def test_the_removal_proof_of_the_rear_cycle(rear):
+    """The rear electrode machines its half of the channel; the front half keeps the stock for the front one."""
+    g, field, electrode, plan, builder, cycle = rear
+    poses = axis_poses(electrode.final_pose, plan.axis_names, cycle.samples)
+    report = simulate_removal(g.blisk, [(electrode.mesh.vertices, electrode.mesh.faces, poses)], GAP,
+                              tolerance=TOLERANCE, spacing=0.5)
+    assert report.overcut_max <= TOLERANCE                           # the machining margin holds
+    for name, s in report.surfaces.items():
+        u = s.u[np.isfinite(s.stock)]
+        stock = s.stock[np.isfinite(s.stock)]
+        x_mid = electrode.final_pose[0, 3]
+        # behind the rear electrode's front end nothing is machined; in the middle of its range the walls are done
+        lo, hi = g.blisk.full_span_axial_range
+        front_part = u < lo + 0.25 * (hi - lo)
+        assert stock[front_part].min() > TOLERANCE, name
+        assert np.median(stock[np.abs(u - x_mid) < 2.0]) <= TOLERANCE, name
+
+
+def test_candidates_in_order_of_electrode_count():
+    g = load_geometry(CONFIG / "default_blisk.yaml")
+    cands = candidate_sets(g.blisk, g.design, SetOptions())
+    assert [n for n, _ in cands] == ["one electrode", "front/rear", "left/right", "three axial pieces"]
+    assert [len(p) for _, p in cands] == [1, 2, 2, 3]
+    three = cands[-1][1]
+    ranges = [d.axial_range for _, _, d in three]
+    assert ranges[0][1] > ranges[1][0] and ranges[1][1] > ranges[2][0]            # overlapping
+    assert len(candidate_sets(g.blisk, g.design, SetOptions(max_electrodes=2))) == 3
+
+
+def test_the_set_designer_reports_why_a_candidate_fails(rear):
+    """The primitive electrode (one piece) is infeasible on the default blisk: rejected with the planner's reason."""
+    g, field, electrode, plan, builder, cycle = rear
+    designer = SetDesigner(g, field, options=SetOptions(max_electrodes=1, time_budget=120.0))
+    result = designer.design(0)
+    assert not result.success
+    (only,) = result.candidates
+    assert only.status == "infeasible"
+    assert "no certified path" in only.reason and "INFEASIBLE" in only.reason
+    assert len(only.pieces[0].tried) == 2                # the start design and the generous one
+    assert "one electrode: infeasible" in result.message
+
+
+def test_a_thin_electrode_reports_its_stock(rear, tmp_path):
+    """A deliberately thin electrode (large h, no process rotation) leaves stock on both walls, and says so."""
+    g, field, electrode, plan, builder, cycle = rear
+    thin = replace(DESIGN, circumferential_reduction=0.05)
+    e = {x.electrode_id: x for x in design_electrodes(g.blisk, thin)}["rear"]
+    report = simulate_removal(g.blisk, [(e.mesh.vertices, e.mesh.faces, e.final_pose[None])], GAP,
+                              tolerance=TOLERANCE, spacing=0.5)
+    # each side face stands h/2 off its wall at the final pose: about 0.025 * r (r ~ 100 .. 120 mm)
+    for wall in ("suction", "pressure"):
+        s = report.surfaces[wall]
+        assert s.area_fraction_above_tolerance > 0.4
+        assert s.stock_max > 2.0
+    assert not report.meets_tolerance
+    # written out with its picture
+    from edm_planner.machining.removal import plot_stock_maps
+    plot_stock_maps(report, tmp_path / "thin.png")
+    assert (tmp_path / "thin.png").stat().st_size > 20_000
+
+
+def test_write_set_of_a_one_piece_result(rear, tmp_path):
+    """set.json, stock.png and the export with the cycle (cycle.csv, phases in plan.json)."""
+    import json
+
+    from edm_planner.machining.electrode_set import Candidate, ElectrodeSet
+
+    g, field, electrode, plan, builder, cycle = rear
+    plan.cycle = cycle
+    poses = axis_poses(electrode.final_pose, plan.axis_names, cycle.samples)
+    piece = Piece("rear", "rear", DESIGN, plan=plan, cycle=cycle, volume=float(electrode.mesh.volume))
+    cand = Candidate("rear only", [piece], status="chosen", reason="test")
+    cand.removal = simulate_removal(g.blisk, [(electrode.mesh.vertices, electrode.mesh.faces, poses)], GAP,
+                                    tolerance=TOLERANCE, spacing=0.5)
+    path = write_set(ElectrodeSet(g.geometry_id, 0, [cand], chosen=cand, message="test"), tmp_path, g.blisk)
+    doc = json.loads(path.read_text())
+    assert doc["format"] == "edm_planner.electrode_set/1"
+    assert doc["electrodes"][0]["plan_id"] == plan.plan_id
+    assert doc["candidates"][0]["removal"]["surfaces"]["suction"]["overcut_max_mm"] <= TOLERANCE
+    assert (tmp_path / "stock.png").exists()
+    pj = json.loads((tmp_path / "rear" / "plan.json").read_text())
+    assert [p["phase"] for p in pj["cycle"]["phases"]] == list(PHASES)
+    rows = (tmp_path / "rear" / "cycle.csv").read_text().splitlines()
+    assert rows[0].startswith("phase,leg,X_mm,Y_mm,Z_mm,A_rad,C_rad")
+    assert len(rows) - 1 == len(cycle.samples)
+    assert rows[1].split(",")[0] == "approach" and rows[-1].split(",")[0] == "retract"
