@@ -213,6 +213,7 @@ class SetDesigner:
         self.plan_options = replace(po, search=search, size_electrode=False)
         self.progress = progress
         self.t0 = None
+        self._where, self._name = (0, 1, 0, 1), ""
         b = self.blisk
         self.h_max = 0.9 * float(np.min(b.pitch - (b.blade.theta_plus - b.blade.theta_minus)))
         self.r_start = self.options.radial_start * b.channel_height_range[0]
@@ -230,6 +231,10 @@ class SetDesigner:
         return self._elapsed() > self.options.time_budget
 
     def _plan(self, piece, h, radial):
+        ci, nc, pj, npc = self._where
+        share = min(len(piece.tried) / 12.0, 0.95)            # about a dozen certified plans size a piece
+        self._report((ci + (pj + share) / npc) / nc, f"{self._name}: {piece.label} electrode, h {h:.4f} rad, "
+                                                       f"radial reduction {radial:.3f} mm")
         design = replace(piece.design, circumferential_reduction=float(h), radial_reduction=float(radial))
         try:
             plan = plan_channel(self.geometry, 0, piece.electrode_id, self.plan_options, field=self.field,
@@ -315,7 +320,7 @@ class SetDesigner:
                 cand.status, cand.reason = "time budget", f"the time budget of {self.options.time_budget:g} s was used up"
                 continue
             self._report(i / len(cands), f"candidate {cand.name}: sizing {cand.electrode_count} electrode(s)")
-            self._evaluate(cand)
+            self._evaluate(cand, i, len(cands))
             if cand.status == "accepted":
                 accepted_count = cand.electrode_count
         accepted = [c for c in cands if c.status == "accepted"]
@@ -338,8 +343,10 @@ class SetDesigner:
         self._report(1.0, result.message)
         return result
 
-    def _evaluate(self, cand):
-        for piece in cand.pieces:
+    def _evaluate(self, cand, index=0, count=1):
+        self._name = cand.name
+        for j, piece in enumerate(cand.pieces):
+            self._where = (index, count, j, len(cand.pieces))
             if not self.size_piece(piece):
                 last = piece.tried[-1][2] if piece.tried else "not planned"
                 cand.status, cand.reason = "infeasible", f"the {piece.label} electrode has no certified path ({last})"
@@ -349,6 +356,7 @@ class SetDesigner:
                 return
         cand.cycle_travel = float(sum((len(p.cycle.samples) - 1) * self.cycle_options.sample_spacing
                                       for p in cand.pieces))
+        self._report((index + 0.95) / count, f"{cand.name}: material-removal proof")
         report = self.prove(cand)
         figures = removal_figures(report)
         worst = max(report.surfaces.values(), key=lambda w: w.area_fraction_above_tolerance)
