@@ -108,6 +108,11 @@ class Plan:
         The whole machining cycle around the feed (approach, feed, process,
         return, retract; :mod:`edm_planner.machining.cycle`), axis values in
         the plan's channel; None for a feed-only plan.
+    removal : dict or None
+        The material-removal proof of the electrode set this plan belongs to
+        (``RemovalReport.to_dict()``: stock and overcut per surface, accuracy); None when not proven.
+    set_id : str
+        The electrode set this plan belongs to ('' for none).
     """
 
     plan_id: str
@@ -129,6 +134,8 @@ class Plan:
     blocking_surface: str = ""
     blocking_clearance: float = float("nan")
     cycle: object = None
+    removal: dict = None
+    set_id: str = ""
 
     @property
     def success(self):
