@@ -18,6 +18,20 @@ Keys
     the geometry's content), channel, electrode id, settings and electrode
     design as requested. Equal requests find the same plan.
 
+A channel plan's record also keeps its machining cycle (every leg's phase,
+label, samples and certified clearance, the process reach, margin and
+verdict), the removal proof of its electrode set and the set's id; records
+written before cycles existed load with ``cycle`` None.
+
+Sequences
+---------
+The ``sequences`` table keeps ordered lists of (plan id, channel) steps, with
+the same checksums and transactions: ``electrode_set`` (a set's electrodes in
+machining order in one channel) and ``blisk_program`` (each electrode through
+every channel 0 .. N-1, then the next; :mod:`edm_planner.machining.program`).
+The table is created on first use in a store of schema 1 (older versions of
+edm_planner ignore it).
+
 Safety
 ------
 Nothing is ever overwritten or deleted behind the user's back. A file that is
@@ -73,6 +87,19 @@ CREATE TABLE plans (
 );
 CREATE INDEX plans_request ON plans (request_key);
 """
+_SEQUENCES_SQL = """
+CREATE TABLE IF NOT EXISTS sequences (
+    sequence_id  TEXT PRIMARY KEY,
+    kind         TEXT NOT NULL,
+    geometry_id  TEXT NOT NULL,
+    created      TEXT NOT NULL,
+    version      TEXT NOT NULL,
+    sha256       TEXT NOT NULL,
+    record       BLOB NOT NULL
+)
+"""
+#: kinds of sequence: an electrode set of one channel, a whole-blisk program
+SEQUENCE_KINDS = ("electrode_set", "blisk_program")
 
 
 class PlanStoreError(EdmError):
@@ -226,6 +253,10 @@ class PlanStore:
                                      ("created_by", f"edm_planner {__version__}")])
                 con.execute("COMMIT")
             self._validate(con)
+            if not con.execute("SELECT name FROM sqlite_master WHERE type='table' AND name='sequences'").fetchall():
+                con.execute("BEGIN IMMEDIATE")
+                con.execute(_SEQUENCES_SQL)          # IF NOT EXISTS: another process may have been faster
+                con.execute("COMMIT")
         except sqlite3.DatabaseError as exc:
             self._refuse(f"is not a usable SQLite database ({exc})")
         finally:
@@ -320,6 +351,145 @@ class PlanStore:
         return [dict(zip(keys, r)) for r in rows]
 
 
+    # -- sequences ------------------------------------------------------------------------------
+    def put_sequence(self, sequence_id, kind, steps, meta=None):
+        """Store a sequence of (plan id, channel) steps (replacing one of the same id).
+
+        Parameters
+        ----------
+        sequence_id : str
+        kind : str
+            "electrode_set" (the set's electrodes in machining order, one channel) or "blisk_program"
+            (each electrode through every channel, then the next).
+        steps : sequence of (plan_id, channel)
+            Every plan id must be a channel plan of this store, all of one geometry.
+        meta : dict, optional
+            JSON-safe rest (labels, blade count, removal figures, ...).
+
+        Returns
+        -------
+        StoredSequence
+
+        Raises
+        ------
+        EdmError
+            INVALID_REQUEST (unknown kind, empty or malformed steps, plans of several geometries), UNKNOWN_ID
+            (a step names a plan not in the store); PlanStoreError when the write fails (nothing changed).
+        """
+        if kind not in SEQUENCE_KINDS:
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"sequence kind {kind!r} is none of {list(SEQUENCE_KINDS)}")
+        if not isinstance(sequence_id, str) or not sequence_id.strip():
+            raise EdmError(ErrorCode.INVALID_REQUEST, "a sequence needs a non-empty id")
+        try:
+            steps = [(str(p), int(c)) for p, c in steps]
+        except (TypeError, ValueError):
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"sequence {sequence_id}: steps must be (plan id, channel) "
+                                                      f"pairs") from None
+        if not steps or any(c < 0 for _, c in steps):
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"sequence {sequence_id}: needs at least one step, channels "
+                                                      f">= 0")
+        geometries = set()
+        for plan_id in dict.fromkeys(p for p, _ in steps):
+            stored = self.get(plan_id)
+            if stored is None:
+                raise EdmError(ErrorCode.UNKNOWN_ID, f"sequence {sequence_id}: plan {plan_id} is not in the plan "
+                                                     f"store {self.path}")
+            if stored.kind != "channel":
+                raise EdmError(ErrorCode.INVALID_REQUEST, f"sequence {sequence_id}: plan {plan_id} is a "
+                                                          f"{stored.kind} plan, not a channel plan")
+            geometries.add(stored.geometry_id)
+        if len(geometries) > 1:
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"sequence {sequence_id}: its plans belong to "
+                                                      f"{len(geometries)} geometries")
+        seq = StoredSequence(sequence_id=sequence_id, kind=kind, geometry_id=geometries.pop(), steps=steps,
+                             meta=dict(meta or {}),
+                             created=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"))
+        head = {"sequence_id": seq.sequence_id, "kind": kind, "geometry_id": seq.geometry_id,
+                "steps": [list(s) for s in steps], "meta": seq.meta, "created": seq.created, "version": seq.version}
+        blob = zlib.compress(json.dumps(head, sort_keys=True, allow_nan=True).encode(), 6)
+        con = self._connect()
+        try:
+            with con:
+                con.execute("BEGIN IMMEDIATE")
+                con.execute("INSERT OR REPLACE INTO sequences VALUES (?, ?, ?, ?, ?, ?, ?)",
+                            (sequence_id, kind, seq.geometry_id, seq.created, seq.version,
+                             hashlib.sha256(blob).hexdigest(), blob))
+        except sqlite3.Error as exc:
+            raise PlanStoreError(f"cannot store sequence {sequence_id} in {self.path}: {exc}") from None
+        finally:
+            con.close()
+        log.info("stored %s %s (%d steps) in %s", kind, sequence_id, len(steps), self.path)
+        return seq
+
+    def get_sequence(self, sequence_id):
+        """The :class:`StoredSequence` of ``sequence_id``, or None."""
+        con = self._connect()
+        try:
+            row = con.execute("SELECT sha256, record FROM sequences WHERE sequence_id = ?",
+                              (sequence_id,)).fetchone()
+        except sqlite3.Error as exc:
+            raise PlanStoreError(f"cannot read the plan store {self.path}: {exc}") from None
+        finally:
+            con.close()
+        if row is None:
+            return None
+        digest, blob = row
+        if not isinstance(blob, bytes) or hashlib.sha256(blob).hexdigest() != digest:
+            raise PlanStoreError(f"sequence {sequence_id} in {self.path} is corrupt (its checksum does not match); "
+                                 f"the record was left as it is")
+        try:
+            head = json.loads(zlib.decompress(blob).decode())
+            seq = StoredSequence(sequence_id=head["sequence_id"], kind=head["kind"], geometry_id=head["geometry_id"],
+                                 steps=[(str(p), int(c)) for p, c in head["steps"]], meta=head["meta"],
+                                 created=head["created"], version=head["version"])
+        except Exception as exc:  # checksummed but unreadable: say which
+            raise PlanStoreError(f"sequence {sequence_id} in {self.path} cannot be read: {exc!r}") from None
+        if seq.sequence_id != sequence_id:
+            raise PlanStoreError(f"sequence {sequence_id} in {self.path} holds {seq.sequence_id}: the store is "
+                                 f"inconsistent")
+        return seq
+
+    def list_sequences(self, limit=None):
+        """Summary rows (sequence_id, kind, geometry_id, created), newest first."""
+        con = self._connect()
+        try:
+            sql = "SELECT sequence_id, kind, geometry_id, created FROM sequences ORDER BY created DESC"
+            rows = con.execute(sql + (f" LIMIT {int(limit)}" if limit else "")).fetchall()
+        except sqlite3.Error as exc:
+            raise PlanStoreError(f"cannot read the plan store {self.path}: {exc}") from None
+        finally:
+            con.close()
+        return [dict(zip(("sequence_id", "kind", "geometry_id", "created"), r)) for r in rows]
+
+
+@dataclass
+class StoredSequence:
+    """An ordered list of (plan id, channel) steps: an electrode set or a whole-blisk program.
+
+    Attributes
+    ----------
+    sequence_id, kind, geometry_id : str
+    steps : list of (str, int)
+        (plan id, channel) in machining order.
+    meta : dict
+        JSON-safe rest (e.g. ``blade_count``, ``labels``).
+    created, version : str
+    """
+
+    sequence_id: str
+    kind: str
+    geometry_id: str
+    steps: list
+    meta: dict = field(default_factory=dict)
+    created: str = ""
+    version: str = __version__
+
+    @property
+    def plan_ids(self):
+        """The distinct plan ids in machining order (one per electrode)."""
+        return list(dict.fromkeys(p for p, _ in self.steps))
+
+
 def default_store_dir():
     """``$EDM_PLANNER_PLAN_STORE``, else ``~/.local/share/edm_planner/plan_store``."""
     return os.environ.get(ENV_VAR) or os.path.join(os.path.expanduser("~"), ".local", "share", "edm_planner",
@@ -338,16 +508,51 @@ def open_store(directory):
 def plan_to_stored(plan):
     """A certified :class:`~edm_planner.planning.plan.Plan` as a record (kind "channel")."""
     mesh = plan.electrode_mesh
+    cycle_meta, cycle_arrays = cycle_to_record(getattr(plan, "cycle", None))
     return StoredPlan(
         plan_id=plan.plan_id, kind="channel", geometry_id=plan.geometry_id, channel=int(plan.channel),
         electrode_id=plan.electrode_id, method=plan.options.search.method, axis_names=tuple(plan.axis_names),
         samples=np.asarray(plan.samples, dtype=np.float64), final_pose=np.asarray(plan.final_pose, np.float64),
         poses=np.asarray(plan.poses, dtype=np.float64),
         meta={"error_code": int(plan.error_code), "message": plan.message, "options": asdict(plan.options),
-              "metrics": plan.metrics.to_dict()},
+              "metrics": plan.metrics.to_dict(), "removal": getattr(plan, "removal", None),
+              "set_id": getattr(plan, "set_id", "") or "", **cycle_meta},
         arrays={"nodes": np.asarray(plan.nodes, dtype=np.float64),
                 "electrode_vertices": np.asarray(mesh.vertices, dtype=np.float64),
-                "electrode_faces": np.asarray(mesh.faces, dtype=np.int64)})
+                "electrode_faces": np.asarray(mesh.faces, dtype=np.int64), **cycle_arrays})
+
+
+def cycle_to_record(cycle):
+    """A MachiningCycle as (meta, arrays) of a record: every leg's samples verbatim, stacked ({}, {} for None)."""
+    if cycle is None:
+        return {}, {}
+    legs = cycle.legs
+    meta = {"cycle": {"axis_names": list(cycle.axis_names), "phases": [leg.phase for leg in legs],
+                      "labels": [leg.label for leg in legs], "reach": cycle.reach.to_dict(),
+                      "margin": float(cycle.margin), "certified": bool(cycle.certified), "message": cycle.message}}
+    arrays = {"cycle_leg_samples": np.vstack([np.asarray(leg.samples, dtype=np.float64) for leg in legs]),
+              "cycle_leg_lengths": np.array([len(leg.samples) for leg in legs], dtype=np.int64),
+              "cycle_min_clearance": np.vstack([np.asarray(leg.min_clearance, dtype=np.float64).reshape(4)
+                                                for leg in legs])}
+    return meta, arrays
+
+
+def cycle_from_record(meta, arrays):
+    """The MachiningCycle of a record's meta and arrays, legs bit for bit; None when it has none."""
+    from ..machining.cycle import Leg, MachiningCycle, ProcessReach
+
+    c = meta.get("cycle")
+    if not c:
+        return None
+    samples, lengths = arrays["cycle_leg_samples"], arrays["cycle_leg_lengths"]
+    bounds = np.concatenate([[0], np.cumsum(lengths)])
+    legs = [Leg(phase, label, samples[a:b].copy(), arrays["cycle_min_clearance"][i].copy())
+            for i, (phase, label, a, b) in enumerate(zip(c["phases"], c["labels"], bounds[:-1], bounds[1:]))]
+    r = c["reach"]
+    reach = ProcessReach(rotation_suction=r["rotation_suction_rad"], rotation_pressure=r["rotation_pressure_rad"],
+                         radial_reduction=r["radial_reduction_mm"], radial_reach=tuple(r["radial_reach_mm"]),
+                         radial_stock=r["radial_stock_mm"], axes_without_a=r["axes_without_a"])
+    return MachiningCycle(tuple(c["axis_names"]), legs, reach, c["margin"], c["certified"], c["message"])
 
 
 def stored_to_plan(stored):
@@ -368,7 +573,8 @@ def stored_to_plan(stored):
                 electrode_id=stored.electrode_id, electrode_mesh=mesh, final_pose=stored.final_pose,
                 options=plan_options_from_dict(stored.meta["options"]), axis_names=stored.axis_names,
                 samples=stored.samples, poses=stored.poses, nodes=stored.arrays["nodes"],
-                metrics=PlanMetrics(**m))
+                metrics=PlanMetrics(**m), cycle=cycle_from_record(stored.meta, stored.arrays),
+                removal=stored.meta.get("removal"), set_id=stored.meta.get("set_id", ""))
 
 
 # -- roughing plans ---------------------------------------------------------------------------

@@ -1,0 +1,261 @@
+"""Programs of several cycles: an electrode set in one channel, the whole blisk (no rclpy).
+
+A *sequence* is an ordered list of (plan id, channel) steps (kept in the plan
+store, :meth:`~edm_planner.planning.store.PlanStore.put_sequence`):
+
+``electrode_set``
+    the set's electrodes in machining order, all in one channel;
+``blisk_program``
+    every channel k = 0 .. N-1 with the first electrode, then every channel
+    with the next (:func:`blisk_program_steps`): one tool change per electrode.
+
+Each step runs the plan's whole machining cycle (approach, feed, process,
+return, retract; :mod:`.cycle`) moved from the plan's channel to the step's
+(A += (k - plan channel) * pitch; the blisk is periodic). Between two steps of
+the same electrode an **index** leg turns A by the channel difference at the
+cycle's home point (the approach start, outside the blades' axial range by the
+exit distance plus the approach distance). There the electrode lies wholly
+beyond the blades' axial range and hub and shroud are surfaces of revolution,
+so turning the blisk about X cannot bring any final surface closer: the index
+needs no certification beyond the home point's. Between two electrodes a
+**tool change**: no motion, the trajectory ends at the old electrode's home
+point and the next one starts at the new electrode's home point (the machine
+moves there from its tool changer, as at the start of any program).
+
+A four-axis machine (X, Y, Z, C) has no A: its channel is indexed outside the
+program, so a step in another channel than its plan's is refused.
+"""
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import EdmError, ErrorCode
+
+#: largest A step between samples of an index leg [rad] (0.05 mm at 100 mm from the axis)
+INDEX_STEP = 0.0005
+#: phase names of the program besides the cycle's (edm_planner.machining.cycle.PHASES)
+INDEX, TOOL_CHANGE = "index", "tool_change"
+
+
+def blisk_program_steps(set_plan_ids, blade_count):
+    """Steps of the whole-blisk program: each electrode of the set through every channel, then the next.
+
+    Parameters
+    ----------
+    set_plan_ids : sequence of str
+        The set's plans in machining order (one per electrode).
+    blade_count : int
+        N: channels 0 .. N-1.
+
+    Returns
+    -------
+    list of (str, int)
+        [(plan id, channel)], len(set_plan_ids) * N steps.
+    """
+    ids = [str(p) for p in set_plan_ids]
+    if not ids:
+        raise EdmError(ErrorCode.INVALID_REQUEST, "a blisk program needs at least one electrode plan")
+    if len(set(ids)) != len(ids):
+        raise EdmError(ErrorCode.INVALID_REQUEST, f"a blisk program names each electrode's plan once, got {ids}")
+    n = int(blade_count)
+    if n < 1 or n != blade_count:
+        raise EdmError(ErrorCode.INVALID_REQUEST, f"blade_count must be a positive integer, got {blade_count!r}")
+    return [(p, k) for p in ids for k in range(n)]
+
+
+def sequence_id_for(kind, steps, geometry_id=""):
+    """A deterministic sequence id (16 hex digits, like plan ids) of a kind and its steps."""
+    doc = json.dumps([kind, geometry_id, [[str(p), int(c)] for p, c in steps]])
+    return hashlib.sha256(doc.encode()).hexdigest()[:16]
+
+
+def shift_to_channel(samples, axis_names, from_channel, to_channel, pitch):
+    """Axis values of a plan's channel moved to channel ``to_channel`` (A += (k - plan channel) pitch).
+
+    Raises
+    ------
+    EdmError
+        INVALID_REQUEST for another channel on a four-axis plan (no A: the channel is indexed outside the
+        program).
+    """
+    out = np.array(samples, dtype=np.float64, copy=True)
+    delta = int(to_channel) - int(from_channel)
+    if not delta:
+        return out
+    names = list(axis_names)
+    if "A" not in names:
+        raise EdmError(ErrorCode.INVALID_REQUEST,
+                       f"a {len(names)}-axis plan ({', '.join(names)}) has no A axis: it cannot move from channel "
+                       f"{from_channel} to channel {to_channel} within a program; the blisk is indexed to each "
+                       f"channel outside the program on such a machine (plan with 5 or 6 axes for a whole-blisk "
+                       f"program)")
+    out[:, names.index("A")] += delta * float(pitch)
+    return out
+
+
+@dataclass
+class PlanCycle:
+    """What a program needs of one plan (from a Plan, a store record or a ChannelPlan message).
+
+    Attributes
+    ----------
+    plan_id, geometry_id, electrode_id : str
+    channel : int
+    axis_names : tuple of str
+    final_pose : (4, 4) float
+        Electrode frame -> W with every axis at 0 in channel 0 (what the axis values are measured from) [mm].
+    samples : (n, k) float
+        The feed (plan's channel) [mm, rad].
+    cycle : MachiningCycle or None
+        Axis values in the plan's channel.
+    """
+
+    plan_id: str
+    geometry_id: str
+    electrode_id: str
+    channel: int
+    axis_names: tuple
+    final_pose: np.ndarray
+    samples: np.ndarray
+    cycle: object = None
+
+    @classmethod
+    def of_plan(cls, plan):
+        """From a :class:`~edm_planner.planning.plan.Plan` (whose final_pose is channel 0's)."""
+        return cls(plan.plan_id, plan.geometry_id, plan.electrode_id, int(plan.channel), tuple(plan.axis_names),
+                   np.asarray(plan.final_pose, dtype=np.float64), np.asarray(plan.samples, dtype=np.float64),
+                   getattr(plan, "cycle", None))
+
+    @classmethod
+    def of_stored(cls, stored):
+        """From a plan-store record (any kind; only channel plans carry a cycle)."""
+        from ..planning.store import cycle_from_record
+
+        cycle = cycle_from_record(stored.meta, stored.arrays) if stored.kind == "channel" else None
+        return cls(stored.plan_id, stored.geometry_id, stored.electrode_id, int(stored.channel),
+                   tuple(stored.axis_names), np.asarray(stored.final_pose, dtype=np.float64),
+                   np.asarray(stored.samples, dtype=np.float64), cycle)
+
+
+@dataclass
+class ProgramLeg:
+    """One rest-to-rest move of a program: a cycle leg in a channel, or an index.
+
+    Attributes
+    ----------
+    phase, label : str
+    samples : (n, k) float
+        Axis values, first and last at rest [mm, rad].
+    channel : int
+        The channel the leg machines in (index: the channel it turns to).
+    plan : PlanCycle
+    """
+
+    phase: str
+    label: str
+    samples: np.ndarray
+    channel: int
+    plan: PlanCycle
+
+
+@dataclass
+class ElectrodeRun:
+    """The steps of one electrode in a row: one trajectory, ended by a tool change when another electrode follows.
+
+    Attributes
+    ----------
+    order : int
+        0 for the first electrode of the sequence.
+    plan : PlanCycle
+    channels : list of int
+    legs : list of ProgramLeg
+        Consecutive legs share their rest sample.
+    """
+
+    order: int
+    plan: PlanCycle
+    channels: list
+    legs: list = field(default_factory=list)
+
+    @property
+    def label(self):
+        return self.plan.electrode_id or f"electrode {self.order + 1}"
+
+
+def index_leg(q_from, q_to, axis_names, plan, channel, step=INDEX_STEP):
+    """The A turn at the home point from one channel's to another's (a straight leg in A only)."""
+    q_from, q_to = np.asarray(q_from, dtype=np.float64), np.asarray(q_to, dtype=np.float64)
+    diff = np.flatnonzero(q_from != q_to)
+    ia = list(axis_names).index("A")
+    if len(diff) and set(diff) != {ia}:
+        raise EdmError(ErrorCode.INTERNAL, f"an index move may turn A only, it would move axes "
+                                           f"{[axis_names[i] for i in diff]}")
+    n = max(2, int(np.ceil(abs(q_to[ia] - q_from[ia]) / step)) + 1)
+    samples = np.repeat(q_from[None], n, axis=0)
+    samples[:, ia] = np.linspace(q_from[ia], q_to[ia], n)
+    samples[-1] = q_to
+    return ProgramLeg(INDEX, f"index A {q_to[ia] - q_from[ia]:+.5f} rad to channel {channel}", samples, channel, plan)
+
+
+def cycle_legs(plan, channel, pitch):
+    """The legs of a plan's cycle in channel ``channel`` (INVALID_REQUEST when the plan has no cycle)."""
+    if plan.cycle is None:
+        raise EdmError(ErrorCode.INVALID_REQUEST,
+                       f"plan {plan.plan_id} (electrode {plan.electrode_id or '-'}) has no machining cycle: a "
+                       f"program runs each electrode's whole cycle (plan the channel's electrode set, "
+                       f"`edm-plan plan` without a design, to get one)")
+    return [ProgramLeg(leg.phase, leg.label,
+                       shift_to_channel(leg.samples, plan.axis_names, plan.channel, channel, pitch), int(channel), plan)
+            for leg in plan.cycle.legs]
+
+
+def program_runs(steps, plans, pitch=None):
+    """The electrode runs of a sequence: cycles in their channels, index legs between channels.
+
+    Parameters
+    ----------
+    steps : sequence of (plan_id, channel)
+    plans : dict plan_id -> PlanCycle
+    pitch : float, optional
+        2 pi / N [rad]; needed when a step's channel differs from its plan's.
+
+    Returns
+    -------
+    list of ElectrodeRun
+        One per run of consecutive steps with the same plan; a tool change lies between two runs.
+
+    Raises
+    ------
+    EdmError
+        UNKNOWN_ID (a step's plan missing), INVALID_REQUEST (a plan without cycle, a four-axis plan in another
+        channel, no pitch where one is needed, axes differing between electrodes).
+    """
+    runs = []
+    names = None
+    for plan_id, channel in steps:
+        plan = plans.get(plan_id)
+        if plan is None:
+            raise EdmError(ErrorCode.UNKNOWN_ID, f"plan {plan_id} of the sequence is not known")
+        if names is None:
+            names = tuple(plan.axis_names)
+        elif tuple(plan.axis_names) != names:
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"plan {plan_id} has axes {list(plan.axis_names)}, the "
+                                                      f"sequence's first plan {list(names)}")
+        if int(channel) != plan.channel and pitch is None:
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"plan {plan_id} is for channel {plan.channel}, its step for "
+                                                      f"channel {channel}: the blade count (pitch) is needed")
+        legs = cycle_legs(plan, channel, pitch)
+        if runs and runs[-1].plan.plan_id == plan_id:
+            run = runs[-1]
+            home_from, home_to = run.legs[-1].samples[-1], legs[0].samples[0]
+            if not np.array_equal(home_from, home_to):
+                run.legs.append(index_leg(home_from, home_to, names, plan, int(channel)))
+        else:
+            run = ElectrodeRun(len(runs), plan, [])
+            runs.append(run)
+        run.channels.append(int(channel))
+        run.legs.extend(legs)
+    return runs

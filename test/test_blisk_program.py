@@ -1,0 +1,296 @@
+"""Cycles and sequences in the plan store, the whole-blisk program's steps, its timing and its NC program.
+
+One real plan with its certified cycle (the rear electrode of the front/rear split, as in
+test_machining_cycle) is planned once per module; a second "electrode" for the programs is the same
+plan stored under another id and electrode name (the program logic does not care what the electrode is).
+"""
+
+import json
+import math
+import sqlite3
+import zlib
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from edm_planner.errors import EdmError, ErrorCode
+from edm_planner.geometry.electrode import ElectrodeDesign, design_electrodes
+from edm_planner.geometry.loader import load_geometry
+from edm_planner.interference.fast import FastChannelField
+from edm_planner.machine.config import default_machine_path, load_machine
+from edm_planner.machine.kinematics import axis_poses
+from edm_planner.machine.nc import PHASE_COLUMNS, nc_program, nc_sequence_program, parse_nc, program_csv
+from edm_planner.machine.trajectory import time_run
+from edm_planner.machining.cycle import PHASES, CycleBuilder, CycleOptions
+from edm_planner.machining.program import (INDEX, PlanCycle, blisk_program_steps, program_runs, sequence_id_for,
+                                           shift_to_channel)
+from edm_planner.planning.plan import PlanOptions
+from edm_planner.planning.planner import plan_channel
+from edm_planner.planning.search import SearchOptions
+from edm_planner.planning.store import PlanStore, PlanStoreError, plan_to_stored, stored_to_plan
+
+from conftest import CONFIG
+
+GAP, TOLERANCE = 0.1, 0.02
+MARGIN = GAP - TOLERANCE
+DESIGN = ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, split="front_rear", split_overlap=1.0)
+#: a removal proof as RemovalReport.to_dict() writes it (figures made up; the store keeps them as they are)
+REMOVAL = {"meets_tolerance": True, "tolerance_mm": 0.02, "discharge_gap_mm": [0.1], "stock_max_mm": 0.04,
+           "overcut_max_mm": 0.0,
+           "surfaces": {s: {"area_mm2": 100.0 + i, "stock_max_mm": 0.01 * (i + 1), "stock_mean_mm": 0.001 * (i + 1),
+                            "area_fraction_above_tolerance": 0.001 * i, "overcut_max_mm": 0.0005 * i}
+                        for i, s in enumerate(("suction", "pressure", "hub", "shroud"))},
+           "accuracy": {"sample_spacing_mm": 0.25, "exact": "at the wall samples", "continuous_bound_mm": 0.011},
+           "pose_count": 4633, "distance_queries": 123, "elapsed_s": 8.0}
+
+
+@pytest.fixture(scope="module")
+def rear(field_cache):
+    g = load_geometry(CONFIG / "default_blisk.yaml")
+    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache, cache_key=g.geometry_id)
+    electrode = {e.electrode_id: e for e in design_electrodes(g.blisk, DESIGN)}["rear"]
+    opts = PlanOptions(search=SearchOptions(margin_blade=MARGIN, margin_hub_shroud=MARGIN, exit_side="downstream"))
+    plan = plan_channel(g, 0, "rear", opts, field=field, design=DESIGN)
+    assert plan.success, plan.message
+    builder = CycleBuilder(field, electrode, DESIGN, plan.axis_names, CycleOptions(tolerance=TOLERANCE))
+    plan.cycle = builder.build(plan.samples, MARGIN, plan.metrics.min_clearance)
+    assert plan.cycle.certified, plan.cycle.message
+    plan.removal, plan.set_id = REMOVAL, "set-of-test"
+    return g, electrode, plan
+
+
+@pytest.fixture(scope="module")
+def machine():
+    return load_machine(default_machine_path())
+
+
+def _second(plan):
+    """The same plan as a second electrode ("front") under another id."""
+    other = replace(plan, plan_id="f" * 16, electrode_id="front")
+    return other
+
+
+# -- the store -----------------------------------------------------------------------------------
+
+def test_a_plan_with_its_cycle_round_trips_bit_for_bit(rear, tmp_path):
+    g, electrode, plan = rear
+    store = PlanStore(tmp_path)
+    store.put(plan_to_stored(plan), "key")
+    back = stored_to_plan(store.get(plan.plan_id))
+    c0, c1 = plan.cycle, back.cycle
+    assert c1 is not None and c1.axis_names == c0.axis_names
+    assert [(leg.phase, leg.label) for leg in c1.legs] == [(leg.phase, leg.label) for leg in c0.legs]
+    for a, b in zip(c0.legs, c1.legs):
+        assert a.samples.tobytes() == b.samples.tobytes()
+        np.testing.assert_array_equal(a.min_clearance, b.min_clearance)
+    assert c1.reach.to_dict() == c0.reach.to_dict()
+    assert (c1.margin, c1.certified, c1.message) == (c0.margin, c0.certified, c0.message)
+    assert c1.samples.tobytes() == c0.samples.tobytes() and c1.leg_ranges == c0.leg_ranges
+    assert c1.phase_ranges == c0.phase_ranges and [p for p, _, _ in c1.phase_ranges] == list(PHASES)
+    assert back.removal == REMOVAL and back.set_id == "set-of-test"
+    assert back.samples.tobytes() == plan.samples.tobytes()
+
+
+def test_records_without_a_cycle_still_load(rear, tmp_path):
+    """A record as written before cycles existed (no cycle, removal or set id in it) loads with cycle None."""
+    g, electrode, plan = rear
+    old = replace(plan, cycle=None, removal=None, set_id="")
+    stored = plan_to_stored(old)
+    for key in ("removal", "set_id", "cycle"):
+        stored.meta.pop(key, None)
+    store = PlanStore(tmp_path)
+    store.put(stored)
+    back = stored_to_plan(store.get(plan.plan_id))
+    assert back.cycle is None and back.removal is None and back.set_id == ""
+
+
+def test_sequences_round_trip_and_are_checked(rear, tmp_path):
+    g, electrode, plan = rear
+    store = PlanStore(tmp_path)
+    other = _second(plan)
+    store.put(plan_to_stored(plan))
+    store.put(plan_to_stored(other))
+    steps = blisk_program_steps([plan.plan_id, other.plan_id], 3)
+    sid = sequence_id_for("blisk_program", steps, plan.geometry_id)
+    assert len(sid) == 16 and sid == sequence_id_for("blisk_program", steps, plan.geometry_id)
+    store.put_sequence(sid, "blisk_program", steps, {"blade_count": 3, "labels": ["rear", "front"]})
+    store.put_sequence("set1", "electrode_set", [(plan.plan_id, 0), (other.plan_id, 0)], {"channel": 0})
+    seq = PlanStore(tmp_path).get_sequence(sid)                  # another opener of the same file
+    assert seq.kind == "blisk_program" and seq.geometry_id == plan.geometry_id
+    assert seq.steps == steps and seq.meta == {"blade_count": 3, "labels": ["rear", "front"]}
+    assert seq.plan_ids == [plan.plan_id, other.plan_id]
+    assert store.get_sequence("nope") is None
+    assert {r["sequence_id"]: r["kind"] for r in store.list_sequences()} == {sid: "blisk_program",
+                                                                          "set1": "electrode_set"}
+    # bad input, named
+    with pytest.raises(EdmError) as e:
+        store.put_sequence("x", "whole_blisk", steps)
+    assert e.value.code == ErrorCode.INVALID_REQUEST and "electrode_set" in e.value.message
+    with pytest.raises(EdmError) as e:
+        store.put_sequence("x", "electrode_set", [("0000000000000000", 0)])
+    assert e.value.code == ErrorCode.UNKNOWN_ID and "0000000000000000" in e.value.message
+    with pytest.raises(EdmError) as e:
+        store.put_sequence("x", "electrode_set", [])
+    assert e.value.code == ErrorCode.INVALID_REQUEST
+    # a damaged sequence record is refused, not guessed at
+    con = sqlite3.connect(tmp_path / "plans.sqlite")
+    with con:
+        con.execute("UPDATE sequences SET record = ? WHERE sequence_id = 'set1'",
+                    (zlib.compress(json.dumps({"sequence_id": "set1"}).encode()),))
+    con.close()
+    with pytest.raises(PlanStoreError) as e:
+        store.get_sequence("set1")
+    assert "corrupt" in e.value.message and e.value.code == ErrorCode.FILE_ERROR
+
+
+def test_a_store_of_the_first_schema_gains_the_sequences_table(tmp_path):
+    """A store written before sequences existed (no sequences table) opens and takes sequences."""
+    PlanStore(tmp_path)
+    con = sqlite3.connect(tmp_path / "plans.sqlite")
+    with con:
+        con.execute("DROP TABLE sequences")
+    con.close()
+    store = PlanStore(tmp_path)
+    assert store.list_sequences() == []
+
+
+# -- program steps and axis values ---------------------------------------------------------------
+
+def test_blisk_program_steps_each_electrode_through_every_channel():
+    assert blisk_program_steps(["a", "b"], 3) == [("a", 0), ("a", 1), ("a", 2), ("b", 0), ("b", 1), ("b", 2)]
+    assert len(blisk_program_steps(["a", "b", "c"], 60)) == 180
+    for bad in (([], 3), (["a", "a"], 3), (["a"], 0), (["a"], 2.5)):
+        with pytest.raises(EdmError) as e:
+            blisk_program_steps(*bad)
+        assert e.value.code == ErrorCode.INVALID_REQUEST
+
+
+def test_shift_to_channel_and_the_four_axis_refusal():
+    q = np.array([[1.0, 2.0, 3.0, 0.1, 0.2]])
+    out = shift_to_channel(q, ("X", "Y", "Z", "A", "C"), 2, 5, 0.25)
+    np.testing.assert_array_equal(out, [[1.0, 2.0, 3.0, 0.1 + 3 * 0.25, 0.2]])
+    four = np.array([[1.0, 2.0, 3.0, 0.2]])
+    np.testing.assert_array_equal(shift_to_channel(four, ("X", "Y", "Z", "C"), 4, 4, 0.25), four)
+    with pytest.raises(EdmError) as e:
+        shift_to_channel(four, ("X", "Y", "Z", "C"), 0, 1, 0.25)
+    assert e.value.code == ErrorCode.INVALID_REQUEST and "no A axis" in e.value.message
+
+
+def test_program_runs_index_at_the_home_point_and_change_tools(rear):
+    g, electrode, plan = rear
+    pitch = g.blisk.pitch
+    a, b = PlanCycle.of_plan(plan), PlanCycle.of_plan(_second(plan))
+    steps = blisk_program_steps([a.plan_id, b.plan_id], 3)
+    runs = program_runs(steps, {a.plan_id: a, b.plan_id: b}, pitch)
+    assert [r.plan.plan_id for r in runs] == [a.plan_id, b.plan_id] and [r.channels for r in runs] == [[0, 1, 2]] * 2
+    ia = plan.axis_names.index("A")
+    n_legs = len(plan.cycle.legs)
+    for run in runs:
+        phases = [leg.phase for leg in run.legs]
+        assert phases == list(p.phase for p in plan.cycle.legs) + [INDEX] + \
+            [p.phase for p in plan.cycle.legs] + [INDEX] + [p.phase for p in plan.cycle.legs]
+        for x, y in zip(run.legs[:-1], run.legs[1:]):           # rest to rest, consecutive legs meet
+            assert np.array_equal(x.samples[-1], y.samples[0])
+        home = plan.cycle.legs[0].samples[0]
+        for k, idx in zip((1, 2), (n_legs, 2 * n_legs + 1)):
+            leg = run.legs[idx]
+            assert leg.channel == k
+            # the index turns A only, by one pitch, at the home point
+            np.testing.assert_array_equal(np.delete(leg.samples, ia, axis=1),
+                                          np.repeat(np.delete(home, ia)[None], len(leg.samples), axis=0))
+            assert leg.samples[-1, ia] - leg.samples[0, ia] == pytest.approx(pitch, abs=1e-15)
+            assert np.all(np.diff(leg.samples[:, ia]) > 0) and np.diff(leg.samples[:, ia]).max() <= 0.0005 + 1e-15
+        # channel k's cycle is channel 0's with A + k pitch: the feed of channel 2 ends at its machining pose
+        feed2 = run.legs[2 * n_legs + 3].samples
+        assert feed2[-1, ia] == pytest.approx(plan.samples[-1, ia] + 2 * pitch, abs=1e-12)
+    # the home point is outside the blades' axial range: the index turn cannot touch a blade, and hub and
+    # shroud are surfaces of revolution whose clearance A does not change
+    pose = axis_poses(plan.final_pose, plan.axis_names, plan.cycle.legs[0].samples[:1])[0]
+    x = electrode.mesh.vertices @ pose[:3, 0] + pose[0, 3]
+    lo, hi = g.blisk.axial_range
+    assert x.min() > hi or x.max() < lo
+    # a plan without a cycle cannot be part of a program
+    with pytest.raises(EdmError) as e:
+        program_runs([(a.plan_id, 0)], {a.plan_id: replace(a, cycle=None)}, pitch)
+    assert e.value.code == ErrorCode.INVALID_REQUEST and "no machining cycle" in e.value.message
+    with pytest.raises(EdmError) as e:
+        program_runs([(a.plan_id, 1)], {a.plan_id: a})
+    assert e.value.code == ErrorCode.INVALID_REQUEST and "blade count" in e.value.message
+    with pytest.raises(EdmError) as e:
+        program_runs([("missing", 0)], {})
+    assert e.value.code == ErrorCode.UNKNOWN_ID
+
+
+def test_the_program_nc_marks_phases_and_tool_changes_and_parses_back(rear, machine, tmp_path):
+    g, electrode, plan = rear
+    a, b = PlanCycle.of_plan(plan), PlanCycle.of_plan(_second(plan))
+    steps = blisk_program_steps([a.plan_id, b.plan_id], 3)
+    runs = program_runs(steps, {a.plan_id: a, b.plan_id: b}, g.blisk.pitch)
+    cache = {}
+    trajectories = [(time_run(r.legs, machine, cache=cache), r.plan.electrode_id, r.plan.plan_id) for r in runs]
+    # the cycle legs are timed once: channels 1 and 2 (and the second electrode, same samples) reuse channel 0's
+    arrays = trajectories[0][0]
+    single = time_run(program_runs([(a.plan_id, 0)], {a.plan_id: a})[0].legs, machine)
+    n = len(single.times)
+    np.testing.assert_array_equal(arrays.times[:n], single.times)
+    ia = list(arrays.axis_names).index("A")
+    text = nc_sequence_program(trajectories, "prog", plan.geometry_id)
+    back = parse_nc(text)
+    assert back["plan_id"] == "prog" and back["geometry_id"] == plan.geometry_id
+    total = sum(len(t.times) for t, _, _ in trajectories)
+    assert len(back["positions"]) == total
+    # one trajectory per electrode, a tool change before each naming the electrode and its plan
+    assert [t for t, _, _ in back["tool_changes"]] == [1, 2]
+    assert [i for _, i, _ in back["tool_changes"]] == [0, len(arrays.times)]
+    assert "ELECTRODE rear PLAN " + plan.plan_id in back["tool_changes"][0][2]
+    assert "ELECTRODE front PLAN " + "f" * 16 in back["tool_changes"][1][2]
+    assert back["trajectories"] == [(0, len(arrays.times) - 1), (len(arrays.times), total - 1)]
+    # every leg start is marked, in order, with its channel: 3 cycles and 2 indexes per electrode
+    names = [p for p, _, _ in back["phases"]]
+    cycle_phases = [leg.phase for leg in plan.cycle.legs]
+    per_electrode = cycle_phases + [INDEX] + cycle_phases + [INDEX] + cycle_phases
+    assert names == per_electrode * 2
+    marks = [(m.phase, m.channel, m.index) for m in arrays.phases]
+    assert [(p, c, i) for p, c, i in back["phases"][:len(marks)]] == marks
+    # positions and times as timed (NC rounding: 0.1 um, 1e-5 deg; feeds to 7 digits)
+    for (t, _, _), (first, last) in zip(trajectories, back["trajectories"]):
+        p = back["positions"][first:last + 1]
+        assert np.abs(p[:, :3] - t.positions[:, :3]).max() <= 0.5e-4 + 1e-12
+        assert np.abs(p[:, 3:] - t.positions[:, 3:]).max() <= math.radians(0.5e-5) + 1e-15
+        np.testing.assert_allclose(back["times"][first:last + 1], t.times, rtol=1e-6, atol=1e-6)
+    # each channel's machining pose (where its process starts): A one pitch further than the channel before
+    assert [m.channel for m in arrays.phases if m.phase == "feed"] == [0, 1, 2]
+    a_pose = [arrays.positions[m.index, ia] for m in arrays.phases if m.phase == "process"][::len(
+        [leg for leg in plan.cycle.legs if leg.phase == "process"])]
+    np.testing.assert_allclose(np.diff(a_pose), g.blisk.pitch, atol=1e-12)
+    # the CSV: one row per point, phase columns after the numbers
+    csv = program_csv([t for t, _, _ in trajectories])
+    rows = csv.splitlines()
+    assert rows[0].split(",")[-len(PHASE_COLUMNS):] == PHASE_COLUMNS
+    assert len(rows) - 1 == total
+    last = rows[-1].split(",")
+    assert last[-6:-1] == ["retract", "2", "1", "front", "f" * 16]
+    # the single plan's NC: phases marked, nothing else changes in the format
+    one = parse_nc(nc_program(single, plan.plan_id, plan.geometry_id, 0, "rear"))
+    assert [p for p, _, _ in one["phases"]] == cycle_phases and one["tool_changes"] == []
+    assert one["trajectories"] == [(0, n - 1)]
+
+
+def test_a_program_leaving_the_a_travel_is_refused(rear, machine, tmp_path):
+    """60 channels run A to 2 pi 59/60 = 6.18 rad (the travel is +-7 rad); a machine with less A travel refuses."""
+    g, electrode, plan = rear
+    text = default_machine_path().read_text().replace("min_rad: -7.0", "min_rad: -2.0").replace(
+        "max_rad: 7.0", "max_rad: 2.0")
+    short = tmp_path / "short_a.yaml"
+    short.write_text(text)
+    m = load_machine(short)
+    a = PlanCycle.of_plan(plan)
+    runs = program_runs(blisk_program_steps([a.plan_id], g.blisk.blade_count), {a.plan_id: a}, g.blisk.pitch)
+    with pytest.raises(EdmError) as e:
+        time_run(runs[0].legs, m)
+    assert e.value.code == ErrorCode.INFEASIBLE and "axis A" in e.value.message and "travel" in e.value.message
+    # on the default machine the whole blisk fits: every channel's machining pose at A + k pitch
+    arrays = time_run(runs[0].legs, machine)
+    ia = list(arrays.axis_names).index("A")
+    assert arrays.positions[:, ia].max() > 6.0 and sum(m.phase == INDEX for m in arrays.phases) == 59
