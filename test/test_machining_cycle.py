@@ -59,9 +59,12 @@ def test_the_cycle_runs_every_phase_in_order_and_is_certified(rear):
     assert np.allclose(samples[proc[0]], plan.samples[-1]) and np.allclose(samples[proc[1]], plan.samples[-1])
     ret = dict((p, (a, b)) for p, a, b in cycle.phase_ranges)["return"]
     assert np.array_equal(samples[ret[0]:ret[1] + 1], plan.samples[::-1])
-    # approach and retract: along X only, starting and ending at the same point outside
+    # approach and retract: the same straight leg both ways, starting and ending at one point further out
     assert np.array_equal(samples[0], samples[-1])
-    assert abs(samples[0][0] - plan.samples[0][0]) == pytest.approx(CycleOptions().approach_distance)
+    assert np.linalg.norm(samples[0][:3] - plan.samples[0][:3]) <= CycleOptions().approach_distance + 1e-9
+    assert np.linalg.norm(samples[0][:3] - plan.samples[0][:3]) >= 0.5 * CycleOptions().approach_distance
+    outwards = np.sign(plan.samples[0][0] - plan.samples[-1][0])
+    assert outwards * (samples[0][0] - plan.samples[0][0]) > 0
     # every process leg keeps the machining margin (certified lower bound)
     assert np.all(cycle.min_clearance("process") >= MARGIN)
 
@@ -91,8 +94,13 @@ def test_copy_processing_rotates_each_side_face_onto_its_wall_gap(rear):
 def test_the_radial_move_reaches_the_shroud_gap_where_the_blades_allow(rear):
     g, field, electrode, plan, builder, cycle = rear
     reach = cycle.reach.radial_reach
+    steps = CycleOptions().wall_steps
+    assert len(reach) == 1 + 2 * steps                                    # A = 0, then a comb towards each wall
     assert reach[0] == pytest.approx(DESIGN.radial_reduction)            # at A = 0 the whole reduction
     assert all(0 <= r <= DESIGN.radial_reduction + 1e-12 for r in reach)
+    # the lean stops the plunge only near a wall: the comb's first steps reach further than its last
+    for comb in (reach[1:1 + steps], reach[1 + steps:]):
+        assert max(comb) >= comb[-1]
     # the radial direction is the electrode frame's Z: after the move the top face is at the shroud gap
     q = plan.samples[-1].copy()
     q[:3] += reach[0] * electrode.final_pose[:3, 2]
@@ -161,7 +169,7 @@ def test_the_set_designer_reports_why_a_candidate_fails(rear):
     (only,) = result.candidates
     assert only.status == "infeasible"
     assert "no certified path" in only.reason and "INFEASIBLE" in only.reason
-    assert len(only.pieces[0].tried) == 2                # the start design and the generous one
+    assert len(only.pieces[0].tried) == 4                # the four start designs, none certified
     assert "one electrode: infeasible" in result.message
 
 
@@ -202,7 +210,7 @@ def test_write_set_of_a_one_piece_result(rear, tmp_path):
     assert doc["format"] == "edm_planner.electrode_set/1"
     assert doc["electrodes"][0]["plan_id"] == plan.plan_id
     assert doc["candidates"][0]["removal"]["surfaces"]["suction"]["overcut_max_mm"] <= TOLERANCE
-    assert (tmp_path / "stock.png").exists()
+    assert (tmp_path / "stock.png").exists() and doc["stock_map"]["candidate"] == "rear only"
     pj = json.loads((tmp_path / "rear" / "plan.json").read_text())
     assert [p["phase"] for p in pj["cycle"]["phases"]] == list(PHASES)
     rows = (tmp_path / "rear" / "cycle.csv").read_text().splitlines()

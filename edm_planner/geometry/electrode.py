@@ -184,30 +184,45 @@ def _offset_wall(face, x, r, theta, grad, gap, sign, iterations=12):
 
 
 def _box_mesh(lattice):
-    """Closed triangle mesh of the boundary of a structured (nx, nr, nt, 3) lattice."""
+    """Closed triangle mesh of the boundary of a structured (nx, nr, nt, 3) lattice, normals outwards.
+
+    The winding follows from the lattice's orientation (the sign of its
+    Jacobian, the same in every cell of an unfolded lattice): on the side
+    i = 0 the triangles (a, b, c) of a (j, k) grid turn about +d/di, so they
+    face inwards when the Jacobian is positive; likewise for the other five
+    sides. Setting it directly replaces trimesh's graph traversal
+    (``fix_normals``, seconds on a refined electrode); the result is checked.
+    """
     nx, nr, nt, _ = lattice.shape
     idx = np.arange(nx * nr * nt).reshape(nx, nr, nt)
+    e = lattice[1, 0, 0] - lattice[0, 0, 0], lattice[0, 1, 0] - lattice[0, 0, 0], lattice[0, 0, 1] - lattice[0, 0, 0]
+    positive = np.dot(e[0], np.cross(e[1], e[2])) > 0
     faces = []
-    for grid in (idx[0], idx[-1], idx[:, 0], idx[:, -1], idx[:, :, 0], idx[:, :, -1]):
+    # (side grid, flip when the Jacobian is positive)
+    for grid, flip in ((idx[0], True), (idx[-1], False), (idx[:, 0], False), (idx[:, -1], True),
+                       (idx[:, :, 0], True), (idx[:, :, -1], False)):
         a, b = grid[:-1, :-1].ravel(), grid[1:, :-1].ravel()
         c, d = grid[1:, 1:].ravel(), grid[:-1, 1:].ravel()
-        faces.append(np.column_stack([a, b, c]))
-        faces.append(np.column_stack([a, c, d]))
+        tri = np.vstack([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+        faces.append(tri[:, ::-1] if flip == positive else tri)
     mesh = trimesh.Trimesh(lattice.reshape(-1, 3), np.vstack(faces), process=True)
     mesh.remove_unreferenced_vertices()
-    trimesh.repair.fix_normals(mesh)
+    if not (mesh.is_winding_consistent and mesh.volume > 0):
+        trimesh.repair.fix_normals(mesh)              # a folded lattice: let trimesh sort it out
     if not (mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0):
         raise GeometryError("electrode: the electrode mesh is not closed (internal error in the lattice)")
     return mesh
 
 
-def design_electrodes(blisk, design=None):
+def design_electrodes(blisk, design=None, only=None):
     """Design the electrode(s) of channel 0.
 
     Parameters
     ----------
     blisk : Blisk
     design : ElectrodeDesign, optional
+    only : str, optional
+        Design just the electrode of this id (the other part of a split is skipped).
 
     Returns
     -------
@@ -229,11 +244,14 @@ def design_electrodes(blisk, design=None):
         lo, hi = xs - 0.5 * design.split_overlap, xs + 0.5 * design.split_overlap
         if lo <= x0 + design.resolution or hi >= x1 - design.resolution:
             raise GeometryError("electrode.split_overlap: the overlap is longer than a sub-electrode")
-        parts = {"front": _walls(blisk, design, x0, hi), "rear": _walls(blisk, design, lo, x1)}
+        ranges = {"front": (x0, hi), "rear": (lo, x1)}
+        parts = {k: _walls(blisk, design, *r) for k, r in ranges.items() if only in (None, k)}
     else:
         parts = _split_sides(design, *_walls(blisk, design, x0, x1))
     electrodes = []
     for name, (X, R, tl, tr) in parts.items():
+        if only is not None and name != only:
+            continue
         nt = max(4, int(np.ceil(np.max((tr - tl) * R) / design.resolution)) + 1)
         tau = np.linspace(0, 1, nt)
         T = tl[..., None] + tau * (tr - tl)[..., None]

@@ -58,6 +58,8 @@ class CycleOptions:
         Take the radial reduction back by a radial move (where the blades let it).
     radial_resolution : float
         Bisection resolution of the radial reach [mm].
+    wall_steps : int
+        A steps towards each wall, each with a radial plunge (where there is a radial reduction).
     sample_spacing : float
         Largest move of any electrode vertex between consecutive samples of a leg [mm].
     """
@@ -67,12 +69,15 @@ class CycleOptions:
     radial_process: bool = True
     radial_resolution: float = 0.01
     sample_spacing: float = 0.05
+    wall_steps: int = 6
 
     def __post_init__(self):
         for name in ("tolerance", "approach_distance", "radial_resolution", "sample_spacing"):
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
                 raise ValueError(f"{name} must be a positive number [mm], got {v!r}")
+        if int(self.wall_steps) < 1:
+            raise ValueError(f"wall_steps must be >= 1, got {self.wall_steps!r}")
 
 
 @dataclass
@@ -267,8 +272,52 @@ class CycleBuilder:
             d[self.axis_names.index(name)] = ez[i]
         return d
 
+    def approach_leg(self, feed_samples):
+        """The approach to the feed's start from further out; (Leg, Certificate).
+
+        The feed ends outside the blades, but the hub and shroud may run on
+        beyond them and narrow, so the way further out follows the feed's first
+        millimetre backwards (its tangent, all axes) before plain X is tried;
+        along the first certified direction the longest certified distance up to
+        ``approach_distance`` is taken (bisection).
+        """
+        q_start = feed_samples[0]
+        ix = self.axis_names.index("X")
+        travel = np.cumsum(np.r_[0.0, np.linalg.norm(np.diff(feed_samples[:, :3], axis=0), axis=1)])
+        j = int(min(np.searchsorted(travel, 1.0), len(feed_samples) - 1))
+        tangent = q_start - feed_samples[max(j, 1)]
+        norm = np.linalg.norm(tangent[:3])
+        along_x = np.zeros_like(q_start)
+        along_x[ix] = np.sign(q_start[ix] - feed_samples[-1][ix]) or 1.0
+        directions = ([tangent / norm] if norm > 1e-9 else []) + [along_x]
+        d_max = self.options.approach_distance
+        best = None
+        for direction in directions:
+            lo, hi = 0.0, d_max
+            leg, cert = self.leg("approach", "approach", q_start + d_max * direction, q_start)
+            if cert.certified:
+                return leg, cert
+            while hi - lo > 0.05 * d_max:
+                mid = 0.5 * (lo + hi)
+                trial = self.leg("approach", "approach", q_start + mid * direction, q_start)
+                if trial[1].certified:
+                    lo, best = mid, trial
+                else:
+                    hi = mid
+            if best is not None:
+                return best
+        return leg, cert                              # not certified: build() reports it
+
     def process_legs(self, q_final):
-        """Legs of copy processing from the machining pose and back to it; (legs, ProcessReach, failure)."""
+        """Legs of copy processing from the machining pose and back to it; (legs, ProcessReach, failure).
+
+        At A = 0 a radial plunge takes the shroud's radial reduction. Towards
+        each wall A turns in ``wall_steps`` steps to the wall's rotation, with a
+        radial plunge at every step (as far as certified): the blades' lean
+        stops the plunge near the wall, and the steps before it take the
+        shroud strip the last plunge cannot reach (a comb along the boundary of
+        the reachable (A, radial) set).
+        """
         legs = []
         reach = ProcessReach(radial_reduction=float(self.design.radial_reduction))
         has_a = "A" in self.axis_names
@@ -276,34 +325,44 @@ class CycleBuilder:
         reach.axes_without_a = not has_a and bool(rotations)
         reaches = []
 
-        def radial_at(q_base, where):
+        def plunge(q_base, where):
             r, out = self.radial_reach(q_base, reach.radial_reduction)
             reaches.append(r)
-            if out is not None:
+            if out is not None and r > 0:
                 out.label = f"radial out {r:.3f} mm{where}"
                 back, _ = self.leg("process", f"radial back{where}", out.samples[-1], q_base)
                 back.min_clearance = out.min_clearance.copy()
                 legs.extend([out, back])
+            return r
 
-        radial_at(q_final, "")
+        plunge(q_final, "")
+        ia = self.axis_names.index("A") if has_a else None
+        steps = self.options.wall_steps if reach.radial_reduction > 0 and self.options.radial_process else 1
         for wall, angle in rotations.items():
             if not has_a:
                 break
-            q_side = q_final.copy()
-            q_side[self.axis_names.index("A")] += angle
-            leg, cert = self.leg("process", f"A {angle:+.4f} rad to the {wall} wall", q_final, q_side)
-            if not cert.certified:
-                return legs, reach, (f"copy processing towards the {wall} wall is not certified: "
-                                     f"{cert.failure_surface} clearance may fall {cert.penetration_bound:.4f} mm "
-                                     f"below the machining margin {self.margin:.3f} mm")
-            legs.append(leg)
+            q_prev = q_final
+            wall_reach = []
+            for i in range(1, steps + 1):
+                q_step = q_final.copy()
+                q_step[ia] += angle * i / steps
+                where = f" at the {wall} wall" if i == steps else f" at A {angle * i / steps:+.4f} rad"
+                leg, cert = self.leg("process", f"A {angle * i / steps:+.4f} rad towards the {wall} wall",
+                                     q_prev, q_step)
+                if not cert.certified:
+                    return legs, reach, (f"copy processing towards the {wall} wall is not certified: "
+                                         f"{cert.failure_surface} clearance may fall {cert.penetration_bound:.4f} mm "
+                                         f"below the machining margin {self.margin:.3f} mm")
+                legs.append(leg)
+                if reach.radial_reduction > 0:
+                    wall_reach.append(plunge(q_step, where))
+                q_prev = q_step
             setattr(reach, f"rotation_{wall}", float(angle))
-            radial_at(q_side, f" at the {wall} wall")
-            back, _ = self.leg("process", f"A back from the {wall} wall", q_side, q_final)
-            back.min_clearance = leg.min_clearance.copy()
+            back, _ = self.leg("process", f"A back from the {wall} wall", q_prev, q_final)
+            back.min_clearance = legs[-1].min_clearance.copy()
             legs.append(back)
         reach.radial_reach = tuple(reaches)
-        reach.radial_stock = float(max(0.0, reach.radial_reduction - max(reaches, default=0.0)))
+        reach.radial_stock = float(max(0.0, reach.radial_reduction - min(reaches, default=0.0)))
         return legs, reach, None
 
     # -- the whole cycle -----------------------------------------------------------------------
@@ -322,15 +381,12 @@ class CycleBuilder:
         feed_samples = np.asarray(feed_samples, float)
         feed_clearance = np.asarray(feed_clearance, float)
         q_start, q_final = feed_samples[0], feed_samples[-1].copy()
-        ix = self.axis_names.index("X")
-        outwards = np.sign(q_start[ix] - q_final[ix]) or 1.0
-        q_home = q_start.copy()
-        q_home[ix] += outwards * self.options.approach_distance
-        approach, c1 = self.leg("approach", "approach along X", q_home, q_start)
+        approach, c1 = self.approach_leg(feed_samples)
+        q_home = approach.samples[0]
         feed = Leg("feed", "feed", feed_samples, feed_clearance.copy())
         process, reach, failure = self.process_legs(q_final)
         back = Leg("return", "return (the feed reversed)", feed_samples[::-1].copy(), feed_clearance.copy())
-        retract, _ = self.leg("retract", "retract along X", q_start, q_home)
+        retract, _ = self.leg("retract", "retract (the approach reversed)", q_start, q_home)
         retract.min_clearance = approach.min_clearance.copy()
         legs = [approach, feed] + process + [back, retract]
         cycle = MachiningCycle(self.axis_names, legs, reach, self.margin)

@@ -22,9 +22,11 @@ electrodes the thickest set (largest electrode volume) wins, then the
 shortest cycle. Every candidate tried is reported with why it was rejected.
 """
 
+import hashlib
+import json
 import logging
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -148,16 +150,32 @@ class ElectrodeSet:
     chosen: Candidate = None
     planning_time: float = 0.0
     message: str = ""
+    set_id: str = ""
+    program_id: str = ""
+
+    @property
+    def plans(self):
+        """The chosen set's plans in machining order (each with its cycle and the set's proof)."""
+        return [] if self.chosen is None else [p.plan for p in self.chosen.pieces]
 
     @property
     def success(self):
         return self.chosen is not None
 
     def to_dict(self):
-        return {"geometry_id": self.geometry_id, "channel": self.channel, "success": self.success,
+        return {"set_id": self.set_id, "program_id": self.program_id,
+                "geometry_id": self.geometry_id, "channel": self.channel, "success": self.success,
                 "message": self.message, "planning_time_s": round(self.planning_time, 2),
                 "chosen": None if self.chosen is None else self.chosen.name,
                 "candidates": [c.to_dict() for c in self.candidates]}
+
+
+def set_id_for(geometry_id, channel, plan_options, options, cycle_options):
+    """Deterministic id of a set request (equal requests give equal sets): (set id, whole-blisk program id)."""
+    key = json.dumps(["electrode_set", geometry_id, int(channel), asdict(plan_options), asdict(options),
+                      asdict(cycle_options)], sort_keys=True, default=str)
+    set_id = hashlib.sha256(key.encode()).hexdigest()[:16]
+    return set_id, hashlib.sha256(f"blisk_program/{set_id}".encode()).hexdigest()[:16]
 
 
 def candidate_sets(blisk, base, options):
@@ -207,16 +225,23 @@ class SetDesigner:
             raise EdmError(ErrorCode.INVALID_REQUEST,
                            f"the tolerance {self.options.tolerance:g} mm is not below the discharge gap "
                            f"{base.discharge_gap:g} mm")
-        po = plan_options or PlanOptions()
-        search = replace(po.search, margin_blade=max(po.search.margin_blade, margin),
-                         margin_hub_shroud=max(po.search.margin_hub_shroud, margin))
-        self.plan_options = replace(po, search=search, size_electrode=False)
+        self.plan_options = self.machining_plan_options(plan_options, base, self.options)
         self.progress = progress
         self.t0 = None
         self._where, self._name = (0, 1, 0, 1), ""
+        self._designs = {}
         b = self.blisk
         self.h_max = 0.9 * float(np.min(b.pitch - (b.blade.theta_plus - b.blade.theta_minus)))
         self.r_start = self.options.radial_start * b.channel_height_range[0]
+
+    @staticmethod
+    def machining_plan_options(plan_options, design, options):
+        """The search settings with the margins raised to the machining margin (gap less the tolerance)."""
+        margin = design.discharge_gap - options.tolerance
+        po = plan_options or PlanOptions()
+        search = replace(po.search, margin_blade=max(po.search.margin_blade, margin),
+                         margin_hub_shroud=max(po.search.margin_hub_shroud, margin))
+        return replace(po, search=search, size_electrode=False)
 
     # -- helpers -----------------------------------------------------------------------------
     def _report(self, fraction, message):
@@ -238,7 +263,7 @@ class SetDesigner:
         design = replace(piece.design, circumferential_reduction=float(h), radial_reduction=float(radial))
         try:
             plan = plan_channel(self.geometry, 0, piece.electrode_id, self.plan_options, field=self.field,
-                                design=design)
+                                design=design, electrodes=self._designed(design, piece.electrode_id))
         except EdmError as e:                     # a reduction that leaves no electrode
             piece.tried.append((h, radial, f"{e.code.name}: {e.message[:120]}"))
             return None, design
@@ -249,13 +274,16 @@ class SetDesigner:
     def size_piece(self, piece):
         """Smallest radial, then smallest circumferential reduction with a certified plan; False if none."""
         o = self.options
-        h_hi, r_hi = 0.5 * self.h_max, self.r_start
-        plan, design = self._plan(piece, h_hi, r_hi)
-        if plan is None:
-            h_hi, r_hi = self.h_max, 2.0 * self.r_start
+        # start designs, most promising first; a reduction that leaves no electrode (a narrow half of a
+        # left/right split) is skipped at the cost of a design, not of a plan
+        plan = None
+        for fh, fr in ((0.5, 1.0), (0.25, 1.0), (1.0, 2.0), (0.5, 2.0)):
+            h_hi, r_hi = fh * self.h_max, fr * self.r_start
             plan, design = self._plan(piece, h_hi, r_hi)
-            if plan is None:
-                return False
+            if plan is not None or self._out_of_time():
+                break
+        if plan is None:
+            return False
         best = (plan, design)
         lo = 0.0                                   # radial first: the least shroud stock
         while r_hi - lo > o.radial_resolution and not self._out_of_time():
@@ -281,8 +309,15 @@ class SetDesigner:
         piece.cycle = builder.build(piece.plan.samples, margin, np.asarray(piece.plan.metrics.min_clearance))
         return True
 
+    def _designed(self, design, electrode_id):
+        """The piece's electrode of a design (in a list, as plan_channel takes it), designed once."""
+        key = (design, electrode_id)
+        if key not in self._designs:
+            self._designs[key] = design_electrodes(self.blisk, design, only=electrode_id)
+        return self._designs[key]
+
     def _electrode(self, piece):
-        for e in design_electrodes(self.blisk, piece.design):
+        for e in self._designed(piece.design, piece.electrode_id):
             if e.electrode_id == piece.electrode_id:
                 return e
         raise EdmError(ErrorCode.INTERNAL, f"no electrode {piece.electrode_id!r} in its own design")
@@ -325,6 +360,8 @@ class SetDesigner:
                 accepted_count = cand.electrode_count
         accepted = [c for c in cands if c.status == "accepted"]
         result = ElectrodeSet(self.geometry.geometry_id, int(channel), cands)
+        result.set_id, result.program_id = set_id_for(self.geometry.geometry_id, channel, self.plan_options,
+                                                      self.options, self.cycle_options)
         if accepted:
             best = min(accepted, key=lambda c: (c.electrode_count, -c.volume, c.cycle_travel))
             best.status = "chosen"
@@ -332,8 +369,10 @@ class SetDesigner:
                 if c is not best:
                     c.reason = (f"also machines the channel, but {best.name} has thicker electrodes "
                                 f"({best.volume:.0f} against {c.volume:.0f} mm^3) or a shorter cycle")
+            proof = best.removal.to_dict()
             for p in best.pieces:
                 _move_plan(p.plan, p.cycle, p.design, channel, self.blisk.pitch)
+                p.plan.removal, p.plan.set_id = proof, result.set_id
             result.chosen = best
             result.message = (f"{best.name}: {best.electrode_count} electrode(s), {best.reason}")
         else:
@@ -436,9 +475,14 @@ def write_set(result, out_dir, blisk, store=None):
                 store.put(plan_to_stored(piece.plan))
             doc["electrodes"].append({"order": order, "label": piece.label, "plan_id": piece.plan.plan_id,
                                       "export": str(path.parent.relative_to(out))})
-        if chosen.removal is not None:
-            plot_stock_maps(chosen.removal, out / "stock.png")
-            doc["stock_map"] = "stock.png"
+    # the chosen set's stock, or the closest candidate's: where the stock stays is what an engineer asks next
+    proven = [c for c in result.candidates if c.removal is not None]
+    shown = chosen if chosen is not None else min(
+        proven, key=lambda c: max(w.area_fraction_above_tolerance for w in c.removal.surfaces.values()),
+        default=None)
+    if shown is not None and shown.removal is not None:
+        plot_stock_maps(shown.removal, out / "stock.png")
+        doc["stock_map"] = {"file": "stock.png", "candidate": shown.name}
     path = out / "set.json"
     try:
         path.write_text(json.dumps(doc, indent=1, allow_nan=False))

@@ -63,6 +63,10 @@ from ..geometry.blisk import CHANNEL_SURFACES
 from ..geometry.frames import cylindrical_to_cartesian
 
 
+#: depths [mm] of the extra sample rows inside every surface edge (see wall_samples)
+REMOVAL_EDGE_DEPTHS = (0.005, 0.01, 0.02, 0.03, 0.045, 0.07, 0.1)
+
+
 @dataclass(frozen=True)
 class RemovalTolerances:
     """Settings and numerical tolerances of the removal simulation [mm]."""
@@ -439,6 +443,17 @@ def _trapezoid(t):
     return w
 
 
+def _graded(params, stretch, depths=REMOVAL_EDGE_DEPTHS):
+    """``params`` (increasing) with extra values at physical ``depths`` [mm] inside both ends.
+
+    ``stretch``: mm per unit of the parameter (its largest rate over the surface).
+    """
+    lo, hi = params[0], params[-1]
+    first = params[1] - lo
+    extra = [d / stretch for d in depths if d / stretch < 0.5 * first]
+    return np.unique(np.concatenate([params, lo + np.asarray(extra), hi - np.asarray(extra)]))
+
+
 def _grid_count(length, stretch, spacing):
     return max(2, int(np.ceil(length * stretch / spacing)) + 1)
 
@@ -513,6 +528,14 @@ def wall_samples(blisk, spacing=REMOVAL.spacing):
             nx = int(np.ceil((nx - 1) * max(step_x / spacing, 1.0))) + 1
             nt = int(np.ceil((nt - 1) * max(step_t / spacing, 1.0))) + 1
         reach = max(step_x, step_t)
+        # rows graded towards every edge: the corner fillets (about gap (sqrt 2 - 1) deep, a few
+        # hundredths wide) and the end strips are narrower than the spacing, and a boundary row's
+        # half-cell weight would count them several times too wide
+        xs = _graded(xs, along_x / (x1 - x0))
+        ts = _graded(ts, across)
+        xx, tt = np.meshgrid(xs, ts)
+        pts, v, inside, jac = make(xx, tt)
+        nt, nx = len(ts), len(xs)
         weights = jac * np.outer(_trapezoid(ts), _trapezoid(xs)).ravel() * inside
         return WallSamples(surface, pts, xx, v.reshape(nt, nx), weights, inside, float(reach))
 

@@ -39,7 +39,8 @@ import threading
 import numpy as np
 from edm_planner_msgs.msg import (AxisPath, AxisPoint, BliskGeometry, ChannelPlan, PlanMetrics, PlanProgress,
                                   RoughingStatistics)
-from edm_planner_msgs.srv import PlanChannel, PlanRoughing
+from edm_planner_msgs.msg import ElectrodeSetCandidate
+from edm_planner_msgs.srv import PlanChannel, PlanElectrodeSet, PlanRoughing
 from geometry_msgs.msg import PoseArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
@@ -53,10 +54,10 @@ from ..planning.objective import Weights
 from ..planning.plan import PlanOptions
 from ..planning.planner import plan_channel
 from ..planning.search import SearchOptions
-from ..planning.store import (PlanStoreError, plan_to_stored, request_key, roughing_to_stored,
+from ..planning.store import (PlanStoreError, cycle_from_record, plan_to_stored, request_key, roughing_to_stored,
                               stored_to_plan)
 from ..roughing import RoughingOptions, plan_roughing, roughing_plan_id
-from .conversions import design_override, error_code, matrix_to_pose
+from .conversions import cycle_fields, design_override, error_code, machining_figures, matrix_to_pose
 from .geometry_loader import LATCHED
 from .runtime import answer, declare_plan_store, spin_node
 
@@ -90,13 +91,14 @@ def plan_options(settings, default_budget):
         raise EdmError(ErrorCode.INVALID_REQUEST, f"settings: {exc}") from None
 
 
-def metrics_to_msg(m):
-    """PlanMetrics (core) -> PlanMetrics message."""
+def metrics_to_msg(m, cycle=None, removal=None):
+    """PlanMetrics (core) -> PlanMetrics message, with the machining figures of a cycle and a removal proof."""
     msg = PlanMetrics(node_count=int(m.node_count), path_length=float(m.path_length), objfun1=float(m.objfun1),
                       objfun2=float(m.objfun2), axis_names=list(m.axis_names),
                       smoothness=[float(v) for v in m.smoothness], sharp_points=[int(v) for v in m.sharp_points],
                       solver_evaluations=int(m.solver_evaluations), planning_time=float(m.planning_time),
-                      certified=bool(m.certified), circumferential_reduction=float(m.circumferential_reduction))
+                      certified=bool(m.certified), circumferential_reduction=float(m.circumferential_reduction),
+                      **machining_figures(cycle, removal))
     (msg.min_clearance_suction, msg.min_clearance_pressure, msg.min_clearance_hub,
      msg.min_clearance_shroud) = (float(v) for v in m.min_clearance)
     return msg
@@ -124,6 +126,41 @@ def roughing_options(request):
     radius, mu, allowance = given(request.tool_radius), given(request.safeguard_factor), given(request.allowance)
     return RoughingOptions(tool_radius=radius, mu=d.mu if mu is None else mu,
                            allowance=d.allowance if allowance is None else allowance)
+
+
+def electrode_set_options(request, design):
+    """PlanElectrodeSet request -> SetOptions (0 / NaN take the defaults)."""
+    from ..machining.electrode_set import SetOptions
+
+    d = SetOptions()
+
+    def given(x, default):
+        x = float(x)
+        return default if (np.isnan(x) or x == 0.0) else x
+
+    try:
+        return SetOptions(tolerance=given(request.tolerance, d.tolerance),
+                          max_area_above=given(request.max_area_above, d.max_area_above),
+                          max_electrodes=int(request.max_electrodes) or d.max_electrodes)
+    except ValueError as exc:
+        raise EdmError(ErrorCode.INVALID_REQUEST, f"electrode set: {exc}") from None
+
+
+def candidate_msg(c):
+    """A candidate of ElectrodeSet.to_dict() -> ElectrodeSetCandidate message."""
+    msg = ElectrodeSetCandidate(name=c["name"], electrode_count=int(c["electrodes"]), status=c["status"],
+                                reason=c["reason"], electrode_volume=float(c["electrode_volume_mm3"]))
+    sized = [p for p in c["pieces"] if p.get("plan_id")]
+    msg.circumferential_reduction = [float(p["design"]["circumferential_reduction"]) for p in sized]
+    msg.radial_reduction = [float(p["design"]["radial_reduction"]) for p in sized]
+    removal = c.get("removal")
+    if removal:
+        surfaces = [removal["surfaces"][s] for s in ("suction", "pressure", "hub", "shroud")]
+        msg.stock_max_exact = [float(s["stock_max_mm"]) for s in surfaces]
+        msg.stock_mean = [float(s["stock_mean_mm"]) for s in surfaces]
+        msg.stock_area_fraction_above = [float(s["area_fraction_above_tolerance"]) for s in surfaces]
+        msg.overcut_max = [float(s["overcut_max_mm"]) for s in surfaces]
+    return msg
 
 
 def statistics_msg(d):
@@ -155,19 +192,34 @@ def fill_roughing_response(response, stored, frame_id):
 
 
 def channel_plan_msg(stored, poses, axis_path, metrics):
-    """The ChannelPlan message the bridge takes, of a stored plan of any kind."""
+    """The ChannelPlan message the bridge takes, of a stored plan of any kind (with its cycle, if it has one).
+
+    ``metrics`` gets the record's machining figures (cycle margin, removal proof; NaN without).
+    """
+    cycle = cycle_from_record(stored.meta, stored.arrays) if stored.kind == "channel" else None
+    for key, value in machining_figures(cycle, stored.meta.get("removal")).items():
+        setattr(metrics, key, value)
     return ChannelPlan(plan_id=stored.plan_id, geometry_id=stored.geometry_id, channel=int(stored.channel),
                        electrode_id=stored.electrode_id, method=stored.method,
                        final_pose=[float(v) for v in stored.poses[-1].reshape(-1)],
                        reference_pose=[float(v) for v in np.asarray(stored.final_pose).reshape(-1)],
-                       poses=poses, axis_path=axis_path, metrics=metrics)
+                       poses=poses, axis_path=axis_path, metrics=metrics,
+                       **cycle_fields(cycle, stored.meta.get("set_id", "")))
 
 
 class _Prepared:
-    """A geometry being (or done being) prepared for planning."""
+    """A geometry being (or done being) prepared for planning.
 
-    def __init__(self):
+    ``parsed`` is set as soon as the blisk and the electrode design are read from the message (all a
+    plan-store lookup needs), ``ready`` once the electrodes are designed and the distance field is loaded.
+    """
+
+    def __init__(self, gid):
+        self.geometry_id = gid
+        self.parsed = threading.Event()
         self.ready = threading.Event()
+        self.blisk = None
+        self.design = None
         self.geometry = None
         self.field = None
         self.error = None
@@ -198,6 +250,8 @@ class TrajectoryPlannerNode(Node):
                                            callback_group=MutuallyExclusiveCallbackGroup())
         self.roughing_service = self.create_service(PlanRoughing, "plan_roughing", self.on_roughing,
                                                     callback_group=MutuallyExclusiveCallbackGroup())
+        self.set_service = self.create_service(PlanElectrodeSet, "plan_electrode_set", self.on_plan_set,
+                                               callback_group=MutuallyExclusiveCallbackGroup())
 
     # -- geometry ---------------------------------------------------------------------------
     def on_geometry(self, msg):
@@ -205,7 +259,7 @@ class TrajectoryPlannerNode(Node):
         with self._arrived:
             if gid in self.geometries:
                 return
-            prepared = self.geometries[gid] = _Prepared()
+            prepared = self.geometries[gid] = _Prepared(gid)
             self.latest = gid
             self._arrived.notify_all()
         threading.Thread(target=self._prepare, args=(gid, msg.model_json, prepared), daemon=True).start()
@@ -215,6 +269,8 @@ class TrajectoryPlannerNode(Node):
             model = json.loads(model_json)
             blisk = Blisk.from_dict(model)
             design = ElectrodeDesign.from_dict(model.get("electrode_design") or {})
+            prepared.blisk, prepared.design = blisk, design
+            prepared.parsed.set()          # stored plans are answered from here on
             electrodes = design_electrodes(blisk, design)
             prepared.geometry = LoadedGeometry(gid, blisk, design, electrodes, source=model.get("source", ""))
             cache = self.get_parameter("cache_dir").value or os.path.join(os.path.expanduser("~"), ".cache",
@@ -229,8 +285,10 @@ class TrajectoryPlannerNode(Node):
             self.get_logger().error(f"geometry {gid[:12]} not usable for planning: {exc!r}")
         finally:
             prepared.ready.set()
+            prepared.parsed.set()
 
-    def _geometry(self, gid):
+    def _geometry(self, gid, parsed_only=False):
+        """The prepared geometry of a request; with ``parsed_only`` without waiting for electrodes and field."""
         # a geometry loaded just before the request may still be on its way on the latched topic
         with self._arrived:
             self._arrived.wait_for(lambda: (gid or self.latest) in self.geometries,
@@ -240,7 +298,8 @@ class TrajectoryPlannerNode(Node):
         if prepared is None:
             raise EdmError(ErrorCode.UNKNOWN_ID,
                            f"unknown geometry id {gid!r}; load it with the geometry_loader first")
-        if not prepared.ready.wait(float(self.get_parameter("geometry_wait").value)):
+        event = prepared.parsed if parsed_only else prepared.ready
+        if not event.wait(float(self.get_parameter("geometry_wait").value)):
             raise EdmError(ErrorCode.TIMEOUT, f"geometry {gid[:12]} is still being prepared")
         if prepared.error is not None:
             raise EdmError(ErrorCode.INVALID_GEOMETRY, f"geometry {gid[:12]} not usable: {prepared.error}")
@@ -251,21 +310,23 @@ class TrajectoryPlannerNode(Node):
         return answer(self, "PlanChannel", self._plan, request, response)
 
     def _plan(self, request, response):
-        prepared = self._geometry(request.geometry_id)
-        geometry = prepared.geometry
+        # a plan in the store is answered at once: its key needs the geometry id and the design only
+        prepared = self._geometry(request.geometry_id, parsed_only=True)
+        gid = prepared.geometry_id
         options = plan_options(request.settings, float(self.get_parameter("time_budget").value))
-        design = design_override(request.electrode, geometry.design)
-        request_id = f"{geometry.geometry_id[:8]}/{request.channel}/{request.electrode_id or 'first'}"
+        design = design_override(request.electrode, prepared.design)
+        request_id = f"{gid[:8]}/{request.channel}/{request.electrode_id or 'first'}"
 
         def progress(stage, fraction, nodes, reference, message):
             self.progress_pub.publish(PlanProgress(request_id=request_id, stage=stage, fraction=float(fraction),
                                                    nodes=int(nodes), reference=float(reference),
                                                    message=message))
 
-        key = request_key(geometry.geometry_id, request.channel, request.electrode_id, options, design)
+        key = request_key(gid, request.channel, request.electrode_id, options, design)
         plan, note = self._stored(key), ""
         if plan is None:
-            plan = plan_channel(geometry, int(request.channel), request.electrode_id, options,
+            prepared = self._geometry(gid)
+            plan = plan_channel(prepared.geometry, int(request.channel), request.electrode_id, options,
                                 field=prepared.field, progress=progress, design=design)
             note = self._store(plan, key)
         else:
@@ -290,23 +351,119 @@ class TrajectoryPlannerNode(Node):
             root = self.get_parameter("export_dir").value or os.path.join(
                 os.path.expanduser("~"), ".local", "share", "edm_planner", "plans")
             path = os.path.join(root, plan.plan_id)
-            write_plan(plan, path, geometry.blisk)
+            write_plan(plan, path, prepared.blisk)
             response.export_path = path
         self.plan_pub.publish(channel_plan_msg(plan_to_stored(plan), response.poses, response.axis_path,
                                                response.metrics))
         self.get_logger().info(f"plan {plan.plan_id}: {response.message}")
+
+    # -- electrode sets ---------------------------------------------------------------------
+    def on_plan_set(self, request, response):
+        return answer(self, "PlanElectrodeSet", self._plan_set, request, response)
+
+    def _plan_set(self, request, response):
+        from ..machining.cycle import CycleOptions
+        from ..machining.electrode_set import SetDesigner, set_id_for, write_set
+        from ..machining.program import blisk_program_steps
+
+        prepared = self._geometry(request.geometry_id, parsed_only=True)
+        gid = prepared.geometry_id
+        options = plan_options(request.settings, float(self.get_parameter("time_budget").value))
+        set_options = electrode_set_options(request, prepared.design)
+        cycle_options = CycleOptions(tolerance=set_options.tolerance)
+        if not 0 <= request.channel < prepared.blisk.blade_count:
+            raise EdmError(ErrorCode.INVALID_REQUEST,
+                           f"channel must be in 0 .. {prepared.blisk.blade_count - 1}, got {request.channel}")
+        designer = None
+        set_id, program_id = set_id_for(gid, request.channel, SetDesigner.machining_plan_options(
+            options, prepared.design, set_options), set_options, cycle_options)
+        found = self._stored_set(set_id)
+        if found is not None:
+            plans, meta = found
+            message = f"from the plan store: {meta.get('message', '')}"
+            candidates, planning_time = meta.get("candidates", []), float(meta.get("planning_time_s", 0.0))
+        else:
+            prepared = self._geometry(gid)
+            request_id = f"{gid[:8]}/{request.channel}/set"
+
+            def progress(stage, fraction, message):
+                self.progress_pub.publish(PlanProgress(request_id=request_id, stage=stage,
+                                                       fraction=float(fraction), message=message))
+
+            designer = SetDesigner(prepared.geometry, prepared.field, options, set_options, cycle_options,
+                                   progress=progress)
+            result = designer.design(int(request.channel))
+            meta = result.to_dict()
+            meta["labels"] = [p.label for p in result.chosen.pieces] if result.chosen else []
+            message, candidates, planning_time = result.message, meta["candidates"], result.planning_time
+            plans = result.plans
+            if result.success:
+                message += self._keep_set(result, blisk_program_steps(
+                    [p.plan_id for p in plans], prepared.blisk.blade_count), meta)
+        response.set_id, response.program_id = set_id, program_id
+        response.candidates = [candidate_msg(c) for c in candidates]
+        response.planning_time = float(planning_time)
+        response.success = bool(plans)
+        response.error_code = error_code(ErrorCode.SUCCESS if plans else ErrorCode.INFEASIBLE)
+        response.message = message
+        if not plans:
+            self.get_logger().warning(f"electrode set {set_id}: {message}")
+            return
+        frame = self.get_parameter("frame_id").value
+        labels = meta.get("labels") or [p.electrode_id for p in plans]
+        response.plan_ids = [p.plan_id for p in plans]
+        response.electrode_labels = list(labels)
+        response.metrics = [metrics_to_msg(p.metrics) for p in plans]
+        if request.write_export and designer is not None:
+            root = self.get_parameter("export_dir").value or os.path.join(
+                os.path.expanduser("~"), ".local", "share", "edm_planner", "plans")
+            response.export_path = str(write_set(result, os.path.join(root, set_id), prepared.blisk).parent)
+        for plan, metrics in zip(plans, response.metrics):
+            self.plan_pub.publish(channel_plan_msg(plan_to_stored(plan), pose_array_msg(plan.poses, frame),
+                                                   axis_path_msg(plan.axis_names, plan.samples), metrics))
+        self.get_logger().info(f"electrode set {set_id}: {message}")
+
+    def _stored_set(self, set_id):
+        """(plans in order, meta) of a stored set, or None."""
+        if self.store is None:
+            return None
+        try:
+            seq = self.store.get_sequence(set_id)
+            if seq is None:
+                return None
+            return [stored_to_plan(self.store.get(pid)) for pid, _ in seq.steps], seq.meta
+        except PlanStoreError as exc:
+            self.get_logger().error(f"plan store: {exc.message}; designing the set anew")
+            return None
+
+    def _keep_set(self, result, program_steps, meta):
+        """Keep the set's plans, the set and the whole-blisk program; a note when they could not be kept."""
+        if self.store is None:
+            return f"; not kept in the plan store: {self.store_error}" if self.store_error else ""
+        try:
+            for plan in result.plans:
+                self.store.put(plan_to_stored(plan))
+            self.store.put_sequence(result.set_id, "electrode_set",
+                                    [(p.plan_id, p.channel) for p in result.plans], meta)
+            self.store.put_sequence(result.program_id, "blisk_program", program_steps,
+                                    {"set_id": result.set_id, "message": result.message})
+        except PlanStoreError as exc:
+            self.get_logger().error(exc.message)
+            return f"; not kept in the plan store: {exc.message}"
+        return ""
 
     # -- roughing ---------------------------------------------------------------------------
     def on_roughing(self, request, response):
         return answer(self, "PlanRoughing", self._roughing, request, response)
 
     def _roughing(self, request, response):
-        prepared = self._geometry(request.geometry_id)
-        gid = prepared.geometry.geometry_id
+        prepared = self._geometry(request.geometry_id, parsed_only=True)
+        gid = prepared.geometry_id
         options = roughing_options(request)
         plan_id = roughing_plan_id(gid, request.channel, options)
         stored, note = self._lookup(plan_id), ""
         if stored is None:
+            prepared = self._geometry(gid)
             def progress(stage, fraction, nodes, reference, message):
                 self.progress_pub.publish(PlanProgress(
                     request_id=f"{gid[:8]}/{request.channel}/roughing", stage=stage, fraction=float(fraction),

@@ -120,7 +120,7 @@ def smoothness_figures(values):
 
 
 def plan_channel(geometry, channel=0, electrode_id="", options=None, field=None, progress=None, design=None,
-                 cache_dir=None):
+                 cache_dir=None, electrodes=None):
     """Plan the feed path of one electrode into one channel.
 
     Parameters
@@ -137,6 +137,8 @@ def plan_channel(geometry, channel=0, electrode_id="", options=None, field=None,
         ``progress(stage, fraction, nodes, reference_mm, message)``.
     design : ElectrodeDesign, optional
         Re-design the electrodes with this design instead of the geometry's.
+    electrodes : list of Electrode, optional
+        The electrodes of ``design``, already designed (callers that plan one design repeatedly).
 
     Returns
     -------
@@ -157,7 +159,8 @@ def plan_channel(geometry, channel=0, electrode_id="", options=None, field=None,
     if field is None:
         field = FastChannelField(blisk, spacing=0.1, cache_dir=cache_dir, cache_key=geometry.geometry_id)
     base_design = design or geometry.design
-    electrodes = geometry.electrodes if design is None else design_electrodes(blisk, design)
+    if electrodes is None:
+        electrodes = geometry.electrodes if design is None else design_electrodes(blisk, design)
     electrode = _pick(electrodes, electrode_id)
     if options.size_electrode:
         return _size(geometry, channel, electrode.electrode_id, options, field, progress, base_design, t0)
