@@ -7,9 +7,17 @@ eq. 2, :class:`FiveAxisKinematics`; the residual is measured), then the path
 is timed on the machine's axes, then expressed in joint coordinates
 (``direction * axis + offset``; velocities and accelerations carry the sign).
 The first point is the plan's start pose, the last its machining pose, both at rest.
+
+A machining cycle (or a program of cycles) is a chain of rest-to-rest legs
+whose direction reverses at the joints (feed in, process, return): one
+curve through a reversal would round it off. Each leg is timed on its own
+(:func:`time_leg`), its end points are made full rest (velocity AND
+acceleration zero, so the rest sample shared by two legs is the same point
+for both and appears once), and the legs are concatenated
+(:func:`concatenate_legs`) with :class:`PhaseMark` s at every leg start.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -119,10 +127,49 @@ class JointTrajectoryArrays:
     accelerations: np.ndarray
     timed: object
     kinematic_residual: float = 0.0
+    phases: list = field(default_factory=list)
 
     @property
     def duration(self):
         return float(self.times[-1])
+
+    def point_phases(self):
+        """Per point the PhaseMark of the leg it ends or lies in (a joint belongs to the leg it ends); None
+        without phases."""
+        if not self.phases:
+            return None
+        out = [self.phases[0]] * len(self.times)
+        for mark, nxt in zip(self.phases, self.phases[1:] + [None]):
+            stop = nxt.index if nxt is not None else len(self.times) - 1
+            for i in range(mark.index + 1, stop + 1):
+                out[i] = mark
+        return out
+
+
+@dataclass
+class PhaseMark:
+    """Where a leg starts in a timed cycle or program.
+
+    Attributes
+    ----------
+    phase : str
+        approach, feed, process, return, retract, index, tool_change.
+    label : str
+    index : int
+        The point (at rest) the leg starts from; the leg's motion begins after it.
+    time : float
+        time_from_start of that point [s].
+    channel : int
+    plan_id, electrode_id : str
+    """
+
+    phase: str
+    label: str
+    index: int
+    time: float
+    channel: int = 0
+    plan_id: str = ""
+    electrode_id: str = ""
 
 
 def plan_trajectory(samples, axis_names, machine, options=TimingOptions(), final_pose=None):
@@ -166,3 +213,249 @@ def plan_trajectory(samples, axis_names, machine, options=TimingOptions(), final
     if not np.all(np.diff(out.times) > 0):
         raise EdmError(ErrorCode.INTERNAL, "time_from_start is not strictly increasing")
     return out
+
+
+# -- cycles: legs timed rest to rest ------------------------------------------------------------
+
+def _quintics(t0, t1, p0, v0, a0, p1, v1, a1):
+    """Coefficients (c3, c4, c5) and duration of the quintics a controller puts through two points."""
+    T = t1 - t0
+    h = p1 - p0
+    c3 = (20 * h - (8 * v1 + 12 * v0) * T - (3 * a0 - a1) * T ** 2) / (2 * T ** 3)
+    c4 = (-30 * h + (14 * v1 + 16 * v0) * T + (3 * a0 - 2 * a1) * T ** 2) / (2 * T ** 4)
+    c5 = (12 * h - 6 * (v1 + v0) * T + (a1 - a0) * T ** 2) / (2 * T ** 5)
+    return c3, c4, c5, T
+
+
+def quintic_segment_extremes(t0, t1, p0, v0, a0, p1, v1, a1):
+    """Exact extremes per axis of the quintic through (p, v, a) at two points (joint_trajectory_controller).
+
+    Returns
+    -------
+    dict
+        ``position_min``, ``position_max``, ``velocity``, ``acceleration``, ``jerk`` (largest magnitudes),
+        each (k,); velocity from the roots of the acceleration (a cubic), acceleration from the roots of the
+        jerk (a quadratic), the jerk from its vertex, positions from the roots of the velocity (a quartic).
+    """
+    c3, c4, c5, T = _quintics(t0, t1, p0, v0, a0, p1, v1, a1)
+    k = len(p0)
+    out = {n: np.zeros(k) for n in ("position_min", "position_max", "velocity", "acceleration", "jerk")}
+    for j in range(k):
+        pos = np.polynomial.Polynomial([p0[j], v0[j], a0[j] / 2, c3[j], c4[j], c5[j]])
+        vel, acc = pos.deriv(1), pos.deriv(2)
+        jerk = pos.deriv(3)
+
+        def inside(poly):
+            r = poly.roots() if poly.degree() > 0 and np.any(poly.coef[1:]) else np.array([])
+            r = np.real(r[np.abs(np.imag(r)) <= 1e-12 * max(1.0, T)])
+            return np.concatenate([[0.0, T], r[(r > 0) & (r < T)]])
+
+        xs = inside(vel)
+        out["position_min"][j], out["position_max"][j] = pos(xs).min(), pos(xs).max()
+        out["velocity"][j] = np.abs(vel(inside(acc))).max()
+        out["acceleration"][j] = np.abs(acc(inside(jerk))).max()
+        out["jerk"][j] = np.abs(jerk(inside(jerk.deriv()))).max()
+    return out
+
+
+def _rest_at_ends(arrays, limits, options):
+    """A timed leg brought to full rest at both ends (velocity and acceleration zero), limits re-verified.
+
+    The cubic spline of :func:`time_parameterize` is at rest in velocity but not in acceleration at its ends;
+    a point shared by two legs can carry one acceleration only. With zero there, the end segments are the
+    quintics the controller puts through the points: their exact velocity, acceleration and jerk peaks,
+    positions and off-chord deviation are computed; a uniform stretch of the leg meets the limits (the
+    quintics scale with it).
+    """
+    times = arrays.times
+    pos, vel, acc = arrays.positions, arrays.velocities, arrays.accelerations.copy()
+    acc[0] = acc[-1] = 0.0
+    vel = vel.copy()
+    vel[0] = vel[-1] = 0.0
+    timed = arrays.timed
+    n = len(times)
+    ends = sorted({0, n - 2})
+    vmax = np.array([lim.velocity_max for lim in limits])
+    amax = np.array([lim.acceleration_max for lim in limits])
+    jmax = np.array([lim.jerk_max for lim in limits])
+    peak_v, peak_a, peak_j = timed.peak_velocity.copy(), timed.peak_acceleration.copy(), timed.peak_jerk.copy()
+    extremes = []
+    for i in ends:
+        e = quintic_segment_extremes(times[i], times[i + 1], pos[i], vel[i], acc[i], pos[i + 1], vel[i + 1],
+                                     acc[i + 1])
+        extremes.append((i, e))
+        peak_v, peak_a, peak_j = (np.maximum(peak_v, e["velocity"]), np.maximum(peak_a, e["acceleration"]),
+                                  np.maximum(peak_j, e["jerk"]))
+    excess = max(float(np.max(peak_v / vmax)), float(np.sqrt(np.max(peak_a / amax))),
+                 float(np.cbrt(np.max(peak_j / jmax))))
+    scale = 1.0
+    if excess > 1.0 + options.limit_tolerance:
+        scale = excess * (1.0 + 1e-12)
+    times = times * scale
+    vel, acc = vel / scale, acc / scale ** 2
+    peak_v, peak_a, peak_j = peak_v / scale, peak_a / scale ** 2, peak_j / scale ** 3
+    # travel: the end quintics' exact position extremes (the interior is the verified spline)
+    for i, e in extremes:
+        for j, lim in enumerate(limits):
+            for value in (e["position_min"][j], e["position_max"][j]):
+                if not lim.position_min - 1e-9 <= value <= lim.position_max + 1e-9:
+                    raise EdmError(ErrorCode.INFEASIBLE,
+                                   f"axis {lim.name} (joint {lim.joint}) at {value:.6g} {lim.unit} leaves its travel "
+                                   f"[{lim.position_min:g}, {lim.position_max:g}] {lim.unit} at t = "
+                                   f"{times[i]:.3f} s (coming to rest at a leg's end)")
+    # off-chord deviation of the end quintics (joint coordinates: distances are the axes')
+    w = np.array([1.0 if a in ("X", "Y", "Z") else options.rotary_lever for a in arrays.axis_names]) ** 2
+    frac = np.linspace(0.0, 1.0, 10)[1:-1]
+    between = timed.deviation_between_samples.copy()
+    for i, _ in extremes:
+        c3, c4, c5, T = _quintics(times[i], times[i + 1], pos[i], vel[i], acc[i], pos[i + 1], vel[i + 1],
+                                  acc[i + 1])
+        x = frac[:, None] * T
+        inner = pos[i] + vel[i] * x + acc[i] / 2 * x ** 2 + c3 * x ** 3 + c4 * x ** 4 + c5 * x ** 5
+        chord = pos[i + 1] - pos[i]
+        d = inner - pos[i]
+        sigma = np.clip((d * chord * w).sum(-1) / max(float((chord * chord * w).sum()), 1e-300), 0.0, 1.0)
+        between = np.maximum(between, np.abs(d - sigma[:, None] * chord).max(axis=0))
+    sign = np.array([lim.direction for lim in limits])
+    timed = replace(timed, times=times.copy(), velocities=vel * sign, accelerations=acc * sign,
+                    peak_velocity=peak_v, peak_acceleration=peak_a, peak_jerk=peak_j,
+                    deviation_between_samples=between, time_scale=timed.time_scale * scale)
+    return replace(arrays, times=times, velocities=vel, accelerations=acc, timed=timed)
+
+
+def time_leg(samples, axis_names, machine, options=TimingOptions(), final_pose=None):
+    """One rest-to-rest leg timed as :func:`plan_trajectory` does, then brought to full rest at both ends.
+
+    Returns
+    -------
+    JointTrajectoryArrays
+        Velocity and acceleration zero at the first and the last point; every limit verified, also on the
+        quintics the controller runs through the end points.
+    """
+    arrays = plan_trajectory(samples, axis_names, machine, options, final_pose=final_pose)
+    return _rest_at_ends(arrays, machine.limits_for(arrays.axis_names), options)
+
+
+def shift_joint(arrays, axis, delta, machine):
+    """A timed leg with planner axis ``axis`` moved by ``delta`` (an A index: timing unchanged), travel checked.
+
+    The whole motion moves by the same constant, so velocities, accelerations and the verified limits stay;
+    the travel is checked on the positions and on the quintics between them (8 points a segment).
+    """
+    if not delta:
+        return arrays
+    j = list(arrays.axis_names).index(axis)
+    lim = machine.axes[axis]
+    pos = arrays.positions.copy()
+    pos[:, j] += lim.direction * delta
+    tpos = arrays.timed.positions.copy()
+    tpos[:, j] += delta
+    t = arrays.times
+    c3, c4, c5, T = _quintics(t[:-1], t[1:], pos[:-1, j], arrays.velocities[:-1, j], arrays.accelerations[:-1, j],
+                              pos[1:, j], arrays.velocities[1:, j], arrays.accelerations[1:, j])
+    x = np.linspace(0.0, 1.0, 10)[:, None] * T
+    inner = (pos[:-1, j] + arrays.velocities[:-1, j] * x + arrays.accelerations[:-1, j] / 2 * x ** 2
+             + c3 * x ** 3 + c4 * x ** 4 + c5 * x ** 5)
+    bad = np.flatnonzero(((inner < lim.position_min - 1e-9) | (inner > lim.position_max + 1e-9)).any(axis=0))
+    if len(bad):
+        i = bad[0]
+        value = inner[:, i][np.argmax(np.maximum(lim.position_min - inner[:, i], inner[:, i] - lim.position_max))]
+        raise EdmError(ErrorCode.INFEASIBLE,
+                       f"axis {axis} (joint {lim.joint}) at {value:.6g} {lim.unit} leaves its travel "
+                       f"[{lim.position_min:g}, {lim.position_max:g}] {lim.unit} at t = {t[i]:.3f} s of the leg")
+    return replace(arrays, positions=pos, timed=replace(arrays.timed, positions=tpos))
+
+
+def concatenate_legs(parts, marks):
+    """Legs at full rest -> one trajectory: times run on, the rest point shared by two legs appears once.
+
+    Parameters
+    ----------
+    parts : list of JointTrajectoryArrays
+        From :func:`time_leg`, same joints, each starting where the previous one ends.
+    marks : list of dict
+        Per part: ``phase``, ``label``, ``channel``, ``plan_id``, ``electrode_id`` (its PhaseMark).
+
+    Returns
+    -------
+    JointTrajectoryArrays
+        With ``phases`` (a PhaseMark per leg) and a ``timed`` summary: peaks and deviations the largest of the
+        legs', ``time_scale`` the largest stretch, ``sample_index`` into the legs' samples stacked.
+    """
+    if not parts:
+        raise EdmError(ErrorCode.INVALID_REQUEST, "nothing to concatenate: no legs")
+    times, pos, vel, acc, tpos, tvel, tacc, index, phases = [], [], [], [], [], [], [], [], []
+    offset, sample_offset, count = 0.0, 0, 0
+    for i, (part, mark) in enumerate(zip(parts, marks)):
+        if list(part.joint_names) != list(parts[0].joint_names):
+            raise EdmError(ErrorCode.INTERNAL, "legs of one trajectory on different joints")
+        if np.any(part.velocities[[0, -1]]) or np.any(part.accelerations[[0, -1]]):
+            raise EdmError(ErrorCode.INTERNAL, f"leg {i} ({mark['phase']}) is not at rest at its ends")
+        first = 0
+        if i:
+            gap = np.abs(part.positions[0] - pos[-1][-1]).max()
+            if gap > 1e-9:
+                raise EdmError(ErrorCode.INTERNAL, f"leg {i} ({mark['phase']}: {mark['label']}) starts {gap:.3g} "
+                                                   f"away from where leg {i - 1} ends")
+            first = 1
+        phases.append(PhaseMark(mark["phase"], mark["label"], max(count - 1, 0), offset, int(mark.get("channel", 0)),
+                                mark.get("plan_id", ""), mark.get("electrode_id", "")))
+        sl = slice(first, None)
+        times.append(part.times[sl] + offset)
+        pos.append(part.positions[sl])
+        vel.append(part.velocities[sl])
+        acc.append(part.accelerations[sl])
+        tpos.append(part.timed.positions[sl])
+        tvel.append(part.timed.velocities[sl])
+        tacc.append(part.timed.accelerations[sl])
+        index.append(part.timed.sample_index[sl] + sample_offset)
+        sample_offset += int(part.timed.sample_index[-1]) + 1
+        count += len(part.times) - first
+        offset = float(times[-1][-1])
+    t0 = parts[0].timed
+    timed = replace(t0, times=np.concatenate(times), positions=np.vstack(tpos), velocities=np.vstack(tvel),
+                    accelerations=np.vstack(tacc), sample_index=np.concatenate(index),
+                    peak_velocity=np.max([p.timed.peak_velocity for p in parts], axis=0),
+                    peak_acceleration=np.max([p.timed.peak_acceleration for p in parts], axis=0),
+                    peak_jerk=np.max([p.timed.peak_jerk for p in parts], axis=0),
+                    deviation_at_samples=np.max([p.timed.deviation_at_samples for p in parts], axis=0),
+                    deviation_between_samples=np.max([p.timed.deviation_between_samples for p in parts], axis=0),
+                    time_scale=max(p.timed.time_scale for p in parts))
+    out = JointTrajectoryArrays(joint_names=list(parts[0].joint_names), axis_names=parts[0].axis_names,
+                                times=np.concatenate(times), positions=np.vstack(pos), velocities=np.vstack(vel),
+                                accelerations=np.vstack(acc), timed=timed,
+                                kinematic_residual=max(p.kinematic_residual for p in parts), phases=phases)
+    if not np.all(np.diff(out.times) > 0):
+        raise EdmError(ErrorCode.INTERNAL, "time_from_start of the concatenated legs is not strictly increasing")
+    return out
+
+
+def time_run(legs, machine, options=TimingOptions(), cache=None):
+    """One electrode's legs (:class:`~edm_planner.machining.program.ProgramLeg`) as one trajectory.
+
+    Each leg is timed rest to rest (:func:`time_leg`); a leg equal to one timed before up to a constant A
+    (the same cycle leg in another channel, the same index turn) reuses that timing, moved
+    (:func:`shift_joint`, travel checked). ``cache`` (a dict) may be shared between runs.
+    """
+    cache = {} if cache is None else cache
+    parts, marks = [], []
+    for leg in legs:
+        names = tuple(leg.plan.axis_names)
+        samples = np.asarray(leg.samples, dtype=np.float64)
+        base = samples.copy()
+        a0 = 0.0
+        if "A" in names:
+            ia = names.index("A")
+            a0 = float(samples[0, ia])
+            base[:, ia] -= a0
+        key = (leg.plan.plan_id, names, np.asarray(leg.plan.final_pose).tobytes(), base.tobytes())
+        hit = cache.get(key)
+        if hit is None:
+            hit = cache[key] = (time_leg(samples, names, machine, options, final_pose=leg.plan.final_pose), a0)
+            part = hit[0]
+        else:
+            part = shift_joint(hit[0], "A", a0 - hit[1], machine)
+        parts.append(part)
+        marks.append({"phase": leg.phase, "label": leg.label, "channel": leg.channel, "plan_id": leg.plan.plan_id,
+                      "electrode_id": leg.plan.electrode_id})
+    return concatenate_legs(parts, marks)
