@@ -6,3 +6,13 @@ the thin ROS 2 adapters.
 """
 
 __version__ = "0.1.0"
+
+import os as _os
+import sys as _sys
+
+# numba keeps the compiled kernels (``cache=True``) in a directory that survives runs and is shared by
+# every process (nodes, the CLI, tests), so each kernel compiles once per machine and source version.
+# Set before any module of ours defines a kernel; a NUMBA_CACHE_DIR given by the caller wins.
+_os.environ.setdefault("NUMBA_CACHE_DIR", _os.path.join(_os.path.expanduser("~"), ".cache", "edm_planner", "numba"))
+if "numba" in _sys.modules:          # imported before us: it read its configuration already
+    _sys.modules["numba"].core.config.reload_config()
