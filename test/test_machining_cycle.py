@@ -17,7 +17,7 @@ from edm_planner.geometry.frames import rotation_about_x
 from edm_planner.geometry.loader import load_geometry
 from edm_planner.interference.fast import FastChannelField
 from edm_planner.machine.kinematics import axis_poses
-from edm_planner.machining.cycle import PHASES, CycleBuilder, CycleOptions, side_rotations
+from edm_planner.machining.cycle import PHASES, CycleBuilder, CycleOptions, comb_shares, side_rotations
 from edm_planner.machining.electrode_set import Piece, SetDesigner, SetOptions, candidate_sets, write_set
 from edm_planner.machining.removal import simulate_removal
 from edm_planner.planning.plan import PlanOptions
@@ -94,7 +94,7 @@ def test_copy_processing_rotates_each_side_face_onto_its_wall_gap(rear):
 def test_the_radial_move_reaches_the_shroud_gap_where_the_blades_allow(rear):
     g, field, electrode, plan, builder, cycle = rear
     reach = cycle.reach.radial_reach
-    steps = CycleOptions().wall_steps
+    steps = len(comb_shares(CycleOptions().wall_steps))
     assert len(reach) == 1 + 2 * steps                                    # A = 0, then a comb towards each wall
     assert reach[0] == pytest.approx(DESIGN.radial_reduction)            # at A = 0 the whole reduction
     assert all(0 <= r <= DESIGN.radial_reduction + 1e-12 for r in reach)

@@ -59,7 +59,8 @@ class CycleOptions:
     radial_resolution : float
         Bisection resolution of the radial reach [mm].
     wall_steps : int
-        A steps towards each wall, each with a radial plunge (where there is a radial reduction).
+        Even A steps towards each wall, each with a radial plunge (where there is a radial
+        reduction), then four more halving the last step (:func:`comb_shares`).
     sample_spacing : float
         Largest move of any electrode vertex between consecutive samples of a leg [mm].
     """
@@ -69,7 +70,7 @@ class CycleOptions:
     radial_process: bool = True
     radial_resolution: float = 0.01
     sample_spacing: float = 0.05
-    wall_steps: int = 6
+    wall_steps: int = 4
 
     def __post_init__(self):
         for name in ("tolerance", "approach_distance", "radial_resolution", "sample_spacing"):
@@ -192,6 +193,15 @@ def _f(v):
     return None if not np.isfinite(v) else round(float(v), 6)
 
 
+def comb_shares(steps):
+    """Shares of a wall rotation at which copy processing plunges radially: even steps, then halving
+    towards the wall (1 - 1/(2 steps), 1 - 1/(4 steps), ...), where the blades' lean stops the plunge
+    and the uncovered strip of shroud shrinks with every halving."""
+    even = [i / steps for i in range(1, steps)]
+    near = [1.0 - 0.5 ** k / steps for k in range(1, 5)]
+    return tuple(even + near + [1.0])
+
+
 def electrode_walls(electrode_id):
     """Which blade walls an electrode's side faces machine: left/right halves take one each."""
     return {"left": ("suction",), "right": ("pressure",)}.get(electrode_id, ("suction", "pressure"))
@@ -246,11 +256,16 @@ class CycleBuilder:
         return Leg(phase, label, samples, low), cert
 
     # -- copy processing ---------------------------------------------------------------------
-    def radial_reach(self, q_base, limit):
-        """Largest certified radial move (<= limit) from q_base, by bisection; (reach, leg out)."""
+    def radial_reach(self, q_base, limit, lean=0.0):
+        """Largest certified radial move (<= limit) from q_base, by bisection; (reach, leg out).
+
+        ``lean`` [rad/mm]: A turned per mm of radial move, to follow a leaning wall.
+        """
         if limit <= 0 or not self.options.radial_process:
             return 0.0, None
         direction = self._radial_axes()
+        if lean:
+            direction[self.axis_names.index("A")] = lean
         leg, cert = self.leg("process", "radial out", q_base, q_base + limit * direction)
         if cert.certified:
             return float(limit), leg
@@ -263,6 +278,21 @@ class CycleBuilder:
             else:
                 hi = mid
         return lo, best
+
+    def wall_lean(self, q_side, wall):
+        """Median dtheta/dr [rad/mm] of a wall where the electrode's side face meets it near its top."""
+        blisk = getattr(self.certifier.field, "blisk", None)
+        if blisk is None or "A" not in self.axis_names:
+            return 0.0
+        face = self.electrode.samples["left" if wall == "suction" else "right"]
+        pose = axis_poses(self.electrode.final_pose, self.axis_names, q_side[None])[0]
+        pts = face @ pose[:3, :3].T + pose[:3, 3]
+        r = np.hypot(pts[:, 1], pts[:, 2])
+        top = r >= r.max() - max(self.design.radial_reduction, 0.5)
+        x = pts[top, 0]
+        _, _, inside, grads = blisk.wall_angles(x, r[top], with_gradient=True)
+        g = grads[0] if wall == "suction" else grads[1]
+        return float(np.median(g[inside, 1])) if inside.any() else 0.0
 
     def _radial_axes(self):
         """Axis-value direction of a unit move along the electrode frame's Z (radial at its centre)."""
@@ -325,8 +355,15 @@ class CycleBuilder:
         reach.axes_without_a = not has_a and bool(rotations)
         reaches = []
 
-        def plunge(q_base, where):
+        def plunge(q_base, where, wall=None):
             r, out = self.radial_reach(q_base, reach.radial_reduction)
+            if wall is not None and r < reach.radial_reduction:
+                # at the wall the blade's lean stops a radial plunge: follow the lean instead
+                lean = self.wall_lean(q_base, wall)
+                r2, out2 = self.radial_reach(q_base, reach.radial_reduction, lean) if lean else (0.0, None)
+                if r2 > r:
+                    r, out = r2, out2
+                    where += f" following the wall's lean {lean:+.5f} rad/mm"
             reaches.append(r)
             if out is not None and r > 0:
                 out.label = f"radial out {r:.3f} mm{where}"
@@ -337,25 +374,26 @@ class CycleBuilder:
 
         plunge(q_final, "")
         ia = self.axis_names.index("A") if has_a else None
-        steps = self.options.wall_steps if reach.radial_reduction > 0 and self.options.radial_process else 1
+        radial = reach.radial_reduction > 0 and self.options.radial_process
+        shares = comb_shares(self.options.wall_steps) if radial else (1.0,)
         for wall, angle in rotations.items():
             if not has_a:
                 break
             q_prev = q_final
             wall_reach = []
-            for i in range(1, steps + 1):
+            for share in shares:
                 q_step = q_final.copy()
-                q_step[ia] += angle * i / steps
-                where = f" at the {wall} wall" if i == steps else f" at A {angle * i / steps:+.4f} rad"
-                leg, cert = self.leg("process", f"A {angle * i / steps:+.4f} rad towards the {wall} wall",
+                q_step[ia] += angle * share
+                where = f" at the {wall} wall" if share == 1.0 else f" at A {angle * share:+.4f} rad"
+                leg, cert = self.leg("process", f"A {angle * share:+.4f} rad towards the {wall} wall",
                                      q_prev, q_step)
                 if not cert.certified:
                     return legs, reach, (f"copy processing towards the {wall} wall is not certified: "
                                          f"{cert.failure_surface} clearance may fall {cert.penetration_bound:.4f} mm "
                                          f"below the machining margin {self.margin:.3f} mm")
                 legs.append(leg)
-                if reach.radial_reduction > 0:
-                    wall_reach.append(plunge(q_step, where))
+                if radial:
+                    wall_reach.append(plunge(q_step, where, wall if share == 1.0 else None))
                 q_prev = q_step
             setattr(reach, f"rotation_{wall}", float(angle))
             back, _ = self.leg("process", f"A back from the {wall} wall", q_prev, q_final)

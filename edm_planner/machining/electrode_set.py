@@ -170,6 +170,10 @@ class ElectrodeSet:
                 "candidates": [c.to_dict() for c in self.candidates]}
 
 
+#: insets of the electrodes' axial range from the closed channel's ends tried, as shares of its length
+EDGE_INSETS = (0.0005, 0.001, 0.002, 0.005)
+
+
 def set_id_for(geometry_id, channel, plan_options, options, cycle_options):
     """Deterministic id of a set request (equal requests give equal sets): (set id, whole-blisk program id)."""
     key = json.dumps(["electrode_set", geometry_id, int(channel), asdict(plan_options), asdict(options),
@@ -186,9 +190,12 @@ def candidate_sets(blisk, base, options):
                            for lab in ("front", "rear")]),
            ("left/right", [(lab, lab, replace(base, split="left_right", split_overlap=ov))
                            for lab in ("left", "right")])]
-    fx0, fx1 = blisk.full_span_axial_range
-    inset = 0.005 * (fx1 - fx0)
-    x0, x1 = fx0 + inset, fx1 - inset
+    if base.axial_range is not None:
+        x0, x1 = base.axial_range
+    else:
+        fx0, fx1 = blisk.full_span_axial_range
+        inset = 0.005 * (fx1 - fx0)
+        x0, x1 = fx0 + inset, fx1 - inset
     cuts = np.linspace(x0, x1, 4)
     ranges = [(x0, cuts[1] + ov / 2), (cuts[1] - ov / 2, cuts[2] + ov / 2), (cuts[2] - ov / 2, x1)]
     out.append(("three axial pieces", [(lab, "main", replace(base, split="none", axial_range=r))
@@ -220,6 +227,7 @@ class SetDesigner:
         base = geometry.design
         self.base = replace(base, circumferential_reduction=0.0, radial_reduction=0.0, reduction_side="both",
                             axial_range=None)
+        self._designs = {}
         margin = base.discharge_gap - self.options.tolerance
         if margin <= 0:
             raise EdmError(ErrorCode.INVALID_REQUEST,
@@ -229,7 +237,6 @@ class SetDesigner:
         self.progress = progress
         self.t0 = None
         self._where, self._name = (0, 1, 0, 1), ""
-        self._designs = {}
         b = self.blisk
         self.h_max = 0.9 * float(np.min(b.pitch - (b.blade.theta_plus - b.blade.theta_minus)))
         self.r_start = self.options.radial_start * b.channel_height_range[0]
@@ -242,6 +249,24 @@ class SetDesigner:
         search = replace(po.search, margin_blade=max(po.search.margin_blade, margin),
                          margin_hub_shroud=max(po.search.margin_hub_shroud, margin))
         return replace(po, search=search, size_electrode=False)
+
+    def closed_channel_range(self):
+        """The longest axial range an electrode can fill: the closed channel less the smallest inset that designs.
+
+        The electrode stops where both blade walls still span hub to shroud; the
+        default design keeps 0.5 % inside that range (the spline footprints' corners),
+        which leaves end strips of stock, so the set tries thinner insets first.
+        """
+        fx0, fx1 = self.blisk.full_span_axial_range
+        length = fx1 - fx0
+        for share in EDGE_INSETS:
+            rng = (fx0 + share * length, fx1 - share * length)
+            try:
+                self._designed(replace(self.base, axial_range=rng), "main")
+                return rng
+            except EdmError:
+                continue
+        return None
 
     # -- helpers -----------------------------------------------------------------------------
     def _report(self, fraction, message):
@@ -344,6 +369,8 @@ class SetDesigner:
     def design(self, channel=0):
         """Design, prove and choose; the chosen pieces' plans and cycles moved to ``channel``."""
         self.t0 = time.perf_counter()
+        self._report(0.0, "the axial range the electrodes can fill")
+        self.base = replace(self.base, axial_range=self.closed_channel_range())
         cands = [Candidate(name, [Piece(lab, eid, d) for lab, eid, d in pieces])
                  for name, pieces in candidate_sets(self.blisk, self.base, self.options)]
         accepted_count = None
