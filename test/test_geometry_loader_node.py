@@ -5,6 +5,7 @@ import os
 import shutil
 import sys
 import threading
+import time
 
 import pytest
 from edm_planner_msgs.msg import BliskGeometry, ErrorCode
@@ -26,20 +27,45 @@ def test_error_codes_mirror_the_message_constants():
     assert consts == {c.name: c.value for c in CoreErrorCode}
 
 
-@pytest.fixture
-def loader(ros, tmp_path):
+def _loader(ros, allowed):
     node = ros.add(GeometryLoaderNode(context=ros.context, parameter_overrides=[
-        Parameter("allowed_directories", value=[str(CONFIG), str(tmp_path)])]))
+        Parameter("allowed_directories", value=[str(CONFIG), str(allowed)])]))
     client = ros.add(Node("test_client", context=ros.context))
     return node, client
+
+
+@pytest.fixture
+def fresh_loader(ros, tmp_path):
+    """A loader node started for this test (it publishes the default geometry at start)."""
+    return _loader(ros, tmp_path)
+
+
+@pytest.fixture(scope="module")
+def shared(tmp_path_factory):
+    """One loader node for the requests of this module (its start loads the default blisk, ~10 s)."""
+    from ros_harness import InProcessRos
+
+    allowed = tmp_path_factory.mktemp("allowed")
+    with InProcessRos() as ros:
+        yield ros, _loader(ros, allowed), allowed
+
+
+@pytest.fixture
+def loader(shared):
+    return shared[1]
+
+
+@pytest.fixture
+def shared_ros(shared):
+    return shared[0]
 
 
 def _load(ros, client, **fields):
     return ros.call(client, LoadGeometry, "load_geometry", LoadGeometry.Request(**fields), timeout=60)
 
 
-def test_late_joiner_receives_the_default_geometry_and_rebuilds_the_model(ros, loader):
-    node, client = loader
+def test_late_joiner_receives_the_default_geometry_and_rebuilds_the_model(ros, fresh_loader):
+    node, client = fresh_loader
     got, markers = [], []
     done = threading.Event()
     client.create_subscription(BliskGeometry, "geometry", lambda m: (got.append(m), done.set()), LATCHED)
@@ -59,8 +85,9 @@ def test_late_joiner_receives_the_default_geometry_and_rebuilds_the_model(ros, l
     pose = pose_to_matrix(msg.electrode_final_poses[0])
     assert 100 < (pose[1, 3] ** 2 + pose[2, 3] ** 2) ** 0.5 < 120       # electrode centre inside the channel
     assert blisk.blade_count == 60
-    deadline = threading.Event()
-    deadline.wait(2.0)
+    deadline = time.monotonic() + 30
+    while not markers and time.monotonic() < deadline:      # latched too: arrives without a new publish
+        time.sleep(0.05)
     assert markers and len(markers[0].markers) == 5
 
 
@@ -69,7 +96,8 @@ def test_late_joiner_receives_the_default_geometry_and_rebuilds_the_model(ros, l
     ("rotor37.yaml", 36, "sections"),
     ("mesh_blisk.yaml", 60, "mesh"),
 ])
-def test_load_each_blade_source(ros, loader, name, blades, source):
+def test_load_each_blade_source(shared_ros, loader, name, blades, source):
+    ros = shared_ros
     _, client = loader
     res = _load(ros, client, path=name)
     assert res.success, res.message
@@ -80,7 +108,8 @@ def test_load_each_blade_source(ros, loader, name, blades, source):
     assert res.summary.electrode_count == 1 and res.summary.electrode_volume[0] > 0
 
 
-def test_inline_yaml_and_same_content_same_id(ros, loader):
+def test_inline_yaml_and_same_content_same_id(shared_ros, loader):
+    ros = shared_ros
     _, client = loader
     by_path = _load(ros, client, path=str(CONFIG / "default_blisk.yaml"))
     inline = _load(ros, client, yaml_text=(CONFIG / "default_blisk.yaml").read_text())
@@ -99,7 +128,8 @@ def test_inline_yaml_and_same_content_same_id(ros, loader):
                    "shroud_profile: [[0, 120], [10, 120]]\nblade: {parametric: {}}"},
      ErrorCode.INVALID_GEOMETRY, "blade"),
 ])
-def test_bad_requests_get_clear_errors(ros, loader, fields, code, words):
+def test_bad_requests_get_clear_errors(shared_ros, loader, fields, code, words):
+    ros = shared_ros
     _, client = loader
     res = _load(ros, client, **fields)
     assert not res.success
@@ -107,7 +137,8 @@ def test_bad_requests_get_clear_errors(ros, loader, fields, code, words):
     assert words in res.message
 
 
-def test_symlink_out_of_the_allowed_directory_is_refused(ros, loader, tmp_path):
+def test_symlink_out_of_the_allowed_directory_is_refused(shared, loader):
+    ros, _, tmp_path = shared
     _, client = loader
     outside = tmp_path.parent / f"outside_{os.getpid()}.yaml"
     shutil.copy(CONFIG / "default_blisk.yaml", outside)
@@ -119,6 +150,7 @@ def test_symlink_out_of_the_allowed_directory_is_refused(ros, loader, tmp_path):
     assert _load(ros, client, path=str(tmp_path / "inside.yaml")).success
 
 
+@pytest.mark.slow
 def test_geometry_loader_process_answers_over_dds(ros, node_processes):
     """The console entry point as its own OS process, called from this process."""
     exe = os.path.join(sys.prefix, "lib", "edm_planner", "geometry_loader")

@@ -48,7 +48,8 @@ def call(system, poses=(), method=CheckInterference.Request.METHOD_EXACT, **fiel
     deadline = time.monotonic() + 120
     while True:                     # the checker may still be receiving the latched geometry
         res = ros.call(client, CheckInterference, "check_interference", req, timeout=120)
-        if res.error_code.val != ErrorCode.UNKNOWN_ID or "geometry" not in res.message or time.monotonic() > deadline:
+        if (res.error_code.val != ErrorCode.UNKNOWN_ID or "geometry" not in res.message
+                or req.geometry_id != gid or time.monotonic() > deadline):     # an unknown id stays unknown
             return res
         time.sleep(0.5)
 
@@ -159,20 +160,18 @@ def test_bad_poses(system):
     assert res.error_code.val == ErrorCode.INVALID_REQUEST and "at most 2000" in res.message
 
 
-def test_a_re_designed_electrode_is_checked_as_requested(system):
+def test_a_re_designed_electrode_is_checked_as_requested(system, default_geometry):
     """ElectrodeDesign overrides: the rear electrode of a front/rear split, checked exactly at its final pose."""
     from edm_planner_msgs.msg import ElectrodeDesign
 
     from edm_planner.geometry.electrode import ElectrodeDesign as Design
     from edm_planner.geometry.electrode import design_electrodes
-    from edm_planner.geometry.loader import load_geometry
 
-    from conftest import CONFIG
 
     nan = float("nan")
     msg = ElectrodeDesign(discharge_gap=0.2, circumferential_reduction=0.03, reduction_side="", radial_reduction=3.0,
                           axial_start=nan, axial_end=nan, split="front_rear", split_fraction=nan, split_overlap=1.0)
-    g = load_geometry(CONFIG / "default_blisk.yaml")
+    g = default_geometry
     rear = design_electrodes(g.blisk, Design(discharge_gap=0.2, circumferential_reduction=0.03,
                                              radial_reduction=3.0, split="front_rear", split_overlap=1.0))[1]
     assert rear.electrode_id == "rear"
