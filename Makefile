@@ -7,7 +7,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export AMENT_PREFIX_PATH := $(CURDIR)/$(VENV)
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: setup demo test bench clean
+.PHONY: setup demo test test-fast bench clean
 
 setup:
 	@bash tools/setup.sh
@@ -15,8 +15,15 @@ setup:
 demo: setup
 	$(PY) -m edm_planner.nodes.demo --out out/demo
 
+# The whole suite, one pytest-xdist worker per core, each test file in one worker (its module
+# fixtures built once). PYTEST_ARGS adds options, e.g. PYTEST_ARGS=--durations=10.
+TEST_WORKERS ?= 2
 test: setup
-	$(PY) -m pytest -q test
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile $(PYTEST_ARGS) test
+
+# The inner loop: everything but the tests marked slow (whole-product runs, planning over DDS).
+test-fast: setup
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not slow" $(PYTEST_ARGS) test
 
 bench: setup
 	$(PY) -m edm_planner.bench --out out/bench.json

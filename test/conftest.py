@@ -8,13 +8,26 @@ import pytest
 
 # Before anything initialises rclpy: keep DDS on this machine and away from
 # other test runs (a domain from the process id, unless the caller set one).
+# Under pytest-xdist each worker inherits the controller's domain and moves to
+# one of its own (worker gw<i>: + 50 i), so the workers' nodes never meet.
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
+WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
+if WORKER:
+    os.environ["ROS_DOMAIN_ID"] = str((int(os.environ["ROS_DOMAIN_ID"]) - 1 + 50 * int(WORKER[2:])) % 100 + 1)
 os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
+# Compiled numba kernels in the user's cache (as edm_planner does by default), named here so that
+# processes started with another HOME (the demo's fresh user) still find them.
+os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "edm_planner", "numba"))
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 REPO = pathlib.Path(__file__).resolve().parent.parent
 CONFIG = REPO / "config"
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "slow: plans over DDS, node processes, the whole product (make test runs them, "
+                                       "make test-fast leaves them out)")
 
 
 @pytest.fixture
@@ -41,10 +54,42 @@ def node_processes(tmp_path):
         procs.stop()
 
 
+def run_directory(tmp_path_factory):
+    """The run's temporary directory, shared by all pytest-xdist workers (each has a basetemp below it)."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if WORKER else base
+
+
 @pytest.fixture(scope="session")
 def field_cache(tmp_path_factory):
-    """One distance-field cache directory for the whole run: each geometry's field is built once."""
-    return str(tmp_path_factory.mktemp("field_cache"))
+    """One distance-field cache directory for the whole run (shared by the xdist workers).
+
+    Each geometry's field is built once and written atomically; a worker that finds it loads it.
+    """
+    path = run_directory(tmp_path_factory) / "field_cache"
+    path.mkdir(exist_ok=True)
+    return str(path)
+
+
+@pytest.fixture(scope="session")
+def default_geometry():
+    """config/default_blisk.yaml loaded once per test process (treat as read-only)."""
+    from edm_planner.geometry.loader import load_geometry
+
+    return load_geometry(CONFIG / "default_blisk.yaml")
+
+
+@pytest.fixture(scope="session")
+def default_field(default_geometry, field_cache):
+    """The default blisk's distance field at the planner's spacing (0.1 mm), from the run's field cache."""
+    from edm_planner.interference.fast import FastChannelField
+
+    import fcntl
+
+    g = default_geometry
+    with open(pathlib.Path(field_cache) / "default_field.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)          # one xdist worker builds it, the other loads it
+        return FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache, cache_key=g.geometry_id)
 
 
 @pytest.fixture(scope="session", autouse=True)

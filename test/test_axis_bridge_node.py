@@ -24,6 +24,8 @@ from edm_planner.nodes.trajectory_planner import TrajectoryPlannerNode
 from test_timing import quintic_peaks
 from test_trajectory_planner_node import rear_design
 
+pytestmark = pytest.mark.slow          # nodes over DDS that plan, or the whole product: not in make test-fast
+
 PITCH = 2 * np.pi / 60
 TOPIC = "/edm_controller/joint_trajectory"
 JOINTS = ["edm_x", "edm_y", "edm_z", "edm_a", "edm_c"]

@@ -407,9 +407,9 @@ def test_mesh_to_sections_is_fast():
     mesh = closed_blade_mesh(*_blade(51, 101))  # ~20k faces
     assert 19000 < len(mesh.faces) < 21000
     mesh_to_sections(mesh, n_sections=5, n_stations=9)  # warm-up
-    start = time.perf_counter()
+    start = time.process_time()         # CPU time: the same on a shared, loaded machine
     mesh_to_sections(mesh, n_sections=25, n_stations=81)
-    assert time.perf_counter() - start < 2.0
+    assert time.process_time() - start < 2.0
 
 
 def test_mesh_to_sections_of_a_loaded_stl(tmp_path, fine_blade):

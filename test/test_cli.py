@@ -32,6 +32,7 @@ def _run(argv):
     return main(argv, out, err), out.getvalue(), err.getvalue()
 
 
+@pytest.mark.slow
 def test_plan_writes_a_certified_export_that_passes_the_exact_recheck(setup):
     yaml, cache, d = setup
     rc, out, err = _run(["plan", "--geometry", str(yaml), "--channel", "3", "--out", str(d / "plan"),
@@ -94,6 +95,7 @@ def test_failures_exit_with_their_error_code(setup, tmp_path):
     assert rc == ErrorCode.INVALID_REQUEST and "step must be a positive number" in err
 
 
+@pytest.mark.slow
 def test_plan_is_kept_in_the_store_and_exported_to_nc_and_csv(setup, tmp_path):
     """plan -> store -> the same request from the store; export by id and by directory agree; NC reads back."""
     from edm_planner.machine.nc import parse_nc
@@ -147,6 +149,7 @@ def test_export_and_store_errors(setup, tmp_path):
     assert rc == ErrorCode.INVALID_REQUEST
 
 
+@pytest.mark.slow
 def test_rough_plans_keeps_and_exports_a_roughing_plan(tmp_path):
     import json
 

@@ -25,7 +25,6 @@ import pytest
 from scipy.optimize import minimize
 
 from edm_planner.geometry.frames import cylindrical_to_cartesian, rotation_about_x
-from edm_planner.geometry.loader import load_geometry
 from edm_planner.geometry.profiles import RevolutionProfile
 from edm_planner.interference import SURFACES
 from edm_planner.interference.criteria import (
@@ -222,8 +221,8 @@ def test_misjudgement_band_against_shape_point_spacing(h):
 # ----------------------------------------------------------------- the default blisk
 
 @pytest.fixture(scope="module")
-def default():
-    return load_geometry(DEFAULT_YAML)
+def default(default_geometry):
+    return default_geometry
 
 
 @pytest.fixture(scope="module")

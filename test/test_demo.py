@@ -4,7 +4,11 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from edm_planner.planning.export import read_plan
+
+pytestmark = pytest.mark.slow          # nodes over DDS that plan, or the whole product: not in make test-fast
 
 
 def processes_of(home):

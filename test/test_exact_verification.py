@@ -10,25 +10,21 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from edm_planner.geometry.frames import rotation_about_x
-from edm_planner.geometry.loader import load_geometry
 from edm_planner.interference.checker import ChannelChecker, Method
 from edm_planner.interference.exact_points import ExactChannelDistance, transform_points
-from edm_planner.interference.fast import FastChannelField
 
-from conftest import CONFIG
 
 GAP = 0.1
 
 
 @pytest.fixture(scope="module")
-def default():
-    return load_geometry(CONFIG / "default_blisk.yaml")
+def default(default_geometry):
+    return default_geometry
 
 
 @pytest.fixture(scope="module")
-def field(default, field_cache):
-    return FastChannelField(default.blisk, spacing=0.1, cache_dir=field_cache,
-                            cache_key=default.geometry_id)
+def field(default_field):
+    return default_field
 
 
 def near(pose, n, seed, shift=0.02, turn=2e-4):

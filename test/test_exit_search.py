@@ -4,21 +4,15 @@ import numpy as np
 import pytest
 
 from edm_planner.geometry.electrode import ElectrodeDesign, design_electrodes
-from edm_planner.geometry.loader import load_geometry
 from edm_planner.interference.exact_points import ExactChannelDistance, transform_points
-from edm_planner.interference.fast import FastChannelField
 from edm_planner.machine.kinematics import state_axes
 from edm_planner.planning.search import ExitSearch, SearchOptions, SearchStatus
 
-from conftest import CONFIG
 
 
 @pytest.fixture(scope="module")
-def setup(field_cache):
-    g = load_geometry(CONFIG / "default_blisk.yaml")
-    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache,
-                             cache_key=g.geometry_id)
-    return g, field
+def setup(default_geometry, default_field):
+    return default_geometry, default_field
 
 
 def test_options_are_validated():
@@ -44,6 +38,7 @@ def test_full_size_electrode_cannot_leave_the_curved_channel(setup):
     assert "blocked by the" in res.message
 
 
+@pytest.mark.slow
 def test_reduced_rear_electrode_exits_downstream_with_its_margins(setup):
     g, field = setup
     rear = design_electrodes(g.blisk, ElectrodeDesign(circumferential_reduction=0.045, radial_reduction=1.5,

@@ -39,8 +39,8 @@ TARGET = 0.005
 # ----------------------------------------------------------------- fixtures
 
 @pytest.fixture(scope="module")
-def default():
-    return load_geometry(CONFIG / "default_blisk.yaml")
+def default(default_geometry):
+    return default_geometry
 
 
 @pytest.fixture(scope="module")

@@ -56,8 +56,8 @@ GAPS = (0.01, 0.1, 0.5)
 # ----------------------------------------------------------------- fixtures
 
 @pytest.fixture(scope="module")
-def default():
-    return load_geometry(DEFAULT_YAML)
+def default(default_geometry):
+    return default_geometry
 
 
 @pytest.fixture(scope="module")

@@ -11,17 +11,14 @@ import trimesh
 from edm_planner.errors import EdmError, ErrorCode
 from edm_planner.geometry.frames import rotation_about_x
 from edm_planner.geometry.electrode import ElectrodeDesign, design_electrodes
-from edm_planner.geometry.loader import load_geometry
 from edm_planner.interference import SURFACES
 from edm_planner.interference.exact_points import ExactChannelDistance, transform_points
-from edm_planner.interference.fast import FastChannelField
 from edm_planner.machine.kinematics import state_axes, state_poses
 from edm_planner.planning.export import (FORMAT, PlanFileError, axes_to_poses, read_plan, verify_exported_plan,
                                          verify_poses, write_plan)
 from edm_planner.planning.plan import AXIS_NAMES, Plan, PlanMetrics, PlanOptions
 from edm_planner.planning.search import ExitSearch, SearchOptions, SearchStatus
 
-from conftest import CONFIG
 
 
 def _dense(electrode, states, spacing):
@@ -39,11 +36,9 @@ def _dense(electrode, states, spacing):
 
 
 @pytest.fixture(scope="module")
-def planned(tmp_path_factory, field_cache):
+def planned(tmp_path_factory, default_geometry, default_field):
     """A plan from a real exit search: the reduced rear electrode of a front/rear split, channel 0."""
-    g = load_geometry(CONFIG / "default_blisk.yaml")
-    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache,
-                             cache_key=g.geometry_id)
+    g, field = default_geometry, default_field
     rear = design_electrodes(g.blisk, ElectrodeDesign(circumferential_reduction=0.045, radial_reduction=1.5,
                                                       split="front_rear", split_overlap=1.0))[1]
     opts = PlanOptions(search=SearchOptions(method="max_min_distance", exit_side="downstream", step=0.2))
@@ -67,10 +62,9 @@ def planned(tmp_path_factory, field_cache):
 
 
 @pytest.fixture(scope="module")
-def field(planned, field_cache):
+def field(default_field):
     """The planner's distance field (loaded from the cache): the verification uses its exact solvers."""
-    g = planned[0]
-    return FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache, cache_key=g.geometry_id)
+    return default_field
 
 
 def brute_force(field, poses, vertices, channel=0):

@@ -23,10 +23,8 @@ REAR = ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, spl
 
 
 @pytest.fixture(scope="module")
-def default(field_cache):
-    g = load_geometry(CONFIG / "default_blisk.yaml")
-    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache, cache_key=g.geometry_id)
-    return g, field
+def default(default_geometry, default_field):
+    return default_geometry, default_field
 
 
 def rear_plan(default, channel=0, **search):
@@ -97,6 +95,7 @@ def test_certification_catches_a_spline_that_cuts_a_blade_between_clear_nodes(de
     assert result.penetration_bound > 0.0
 
 
+@pytest.mark.slow
 def test_four_and_six_axis_machines(default):
     p4 = rear_plan(default, axes=4)
     assert p4.axis_names == ("X", "Y", "Z", "C")
@@ -140,6 +139,7 @@ def test_bad_requests(default):
     assert err.value.code == ErrorCode.UNKNOWN_ID
 
 
+@pytest.mark.slow
 def test_sizing_finds_a_thinner_electrode_with_a_certified_path(default):
     g, field = default
     start = ElectrodeDesign(circumferential_reduction=0.045, radial_reduction=3.0, split="front_rear",
@@ -156,6 +156,7 @@ def test_sizing_finds_a_thinner_electrode_with_a_certified_path(default):
     assert not q.success
 
 
+@pytest.mark.slow
 def test_rotor37_plan(field_cache):
     g = load_geometry(CONFIG / "rotor37.yaml")
     field = FastChannelField(g.blisk, spacing=0.3, cache_dir=field_cache, cache_key=g.geometry_id)

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from edm_planner.errors import EdmError, ErrorCode
-from edm_planner.geometry.loader import load_geometry
 from edm_planner.geometry.profiles import RevolutionProfile
 from edm_planner.machine.config import load_machine
 from edm_planner.machine.kinematics import axis_poses
@@ -30,8 +29,8 @@ UM = 1e-3          # one micrometre [mm]
 
 
 @pytest.fixture(scope="module")
-def blisk():
-    return load_geometry(CONFIG / "default_blisk.yaml").blisk
+def blisk(default_geometry):
+    return default_geometry.blisk
 
 
 @pytest.fixture(scope="module")

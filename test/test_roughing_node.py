@@ -10,7 +10,6 @@ from edm_planner_msgs.srv import ExecutePlan, PlanRoughing
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from edm_planner.geometry.loader import load_geometry
 from edm_planner.machine.kinematics import axis_poses
 from edm_planner.nodes.axis_bridge import AxisBridgeNode
 from edm_planner.nodes.conversions import pose_to_matrix
@@ -20,7 +19,8 @@ from edm_planner.roughing.distance import RevolutionDistance
 from edm_planner.roughing.path import TOOL_IN_CARRIER
 from edm_planner.roughing.planner import target_surface
 
-from conftest import CONFIG
+pytestmark = pytest.mark.slow          # nodes over DDS that plan, or the whole product: not in make test-fast
+
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +53,7 @@ def channel_2(system):
     return rough(system, channel=2)
 
 
-def test_roughing_plan_over_dds(system, channel_2):
+def test_roughing_plan_over_dds(system, channel_2, default_geometry):
     res = channel_2
     assert res.success and res.error_code.val == ErrorCode.SUCCESS, res.message
     n = len(res.labels)
@@ -70,7 +70,7 @@ def test_roughing_plan_over_dds(system, channel_2):
     assert res.optimised.max_absolute_error == pytest.approx(h.max())
     # independent check of the published poses: the bottom centre of each tool lies at most h from the
     # target surface (the shroud offset by 0.3 mm), in channel 2's angular sector
-    g = load_geometry(CONFIG / "default_blisk.yaml")
+    g = default_geometry
     target = RevolutionDistance(target_surface(g.blisk, 0.3))
     poses = np.array([pose_to_matrix(p) for p in res.tool_poses.poses])
     centre_error = np.abs(target.signed_distance(poses[:, :3, 3]))

@@ -282,17 +282,13 @@ def test_joint_directions_and_offsets(machine):
 
 # -- a real certified plan -----------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def real_plan(field_cache):
-    from conftest import CONFIG
+def real_plan(default_geometry, default_field):
     from edm_planner.geometry.electrode import ElectrodeDesign
-    from edm_planner.geometry.loader import load_geometry
-    from edm_planner.interference.fast import FastChannelField
     from edm_planner.planning.plan import PlanOptions
     from edm_planner.planning.planner import plan_channel
     from edm_planner.planning.search import SearchOptions
 
-    g = load_geometry(CONFIG / "default_blisk.yaml")
-    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache, cache_key=g.geometry_id)
+    g, field = default_geometry, default_field
     rear = ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, split="front_rear",
                            split_overlap=1.0, resolution=1.0)
     plan = plan_channel(g, 3, "rear", PlanOptions(search=SearchOptions(exit_side="downstream")), field=field,
@@ -301,6 +297,7 @@ def real_plan(field_cache):
     return plan
 
 
+@pytest.mark.slow
 def test_real_plan_timed_on_the_default_machine(real_plan, machine):
     plan = real_plan
     j = plan_trajectory(plan.samples, plan.axis_names, machine)
@@ -327,6 +324,7 @@ def test_real_plan_timed_on_the_default_machine(real_plan, machine):
 
 
 # -- NC program and CSV ----------------------------------------------------------------------------
+@pytest.mark.slow
 def test_nc_export_parses_back_to_the_same_timed_path(real_plan, machine):
     from edm_planner.machine.nc import parse_nc, nc_program, trajectory_csv
 
@@ -371,6 +369,7 @@ def test_nc_parser_rejects_what_it_does_not_write():
     np.testing.assert_allclose(back["times"], [0, 0.5, 1.5])
 
 
+@pytest.mark.slow
 def test_machine_a_zero_and_c_pivot_keep_the_certified_poses(real_plan, machine):
     """A machine whose C axis is 4.5 mm off the electrode origin and whose channel 0 is at A = 0.5 rad."""
     from edm_planner.machine.kinematics import FiveAxisKinematics
@@ -407,16 +406,12 @@ def machine6():
     return load_machine(CONFIG_DIR / "machine_6axis.yaml")
 
 
-def _plan(field_cache, axes, design, channel=3):
-    from conftest import CONFIG
-    from edm_planner.geometry.loader import load_geometry
-    from edm_planner.interference.fast import FastChannelField
+def _plan(default, axes, design, channel=3):
     from edm_planner.planning.plan import PlanOptions
     from edm_planner.planning.planner import plan_channel
     from edm_planner.planning.search import SearchOptions
 
-    g = load_geometry(CONFIG / "default_blisk.yaml")
-    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache, cache_key=g.geometry_id)
+    g, field = default
     plan = plan_channel(g, channel, "rear", PlanOptions(search=SearchOptions(axes=axes, exit_side="downstream")),
                         field=field, design=design)
     assert plan.success, plan.message
@@ -424,24 +419,24 @@ def _plan(field_cache, axes, design, channel=3):
 
 
 @pytest.fixture(scope="module")
-def plan4(field_cache):
+def plan4(default_geometry, default_field):
     """A real 4-axis plan (channel 3): a shorter, thinner rear electrode turns out without A (the REAR one does not)."""
     from edm_planner.geometry.electrode import ElectrodeDesign
 
     design = ElectrodeDesign(circumferential_reduction=0.045, radial_reduction=3.0, split="front_rear",
                              split_overlap=0.5, split_fraction=0.85, resolution=1.0)
-    plan = _plan(field_cache, 4, design)
+    plan = _plan((default_geometry, default_field), 4, design)
     assert plan.axis_names == AXES4
     return plan
 
 
 @pytest.fixture(scope="module")
-def plan6(field_cache):
+def plan6(default_geometry, default_field):
     from edm_planner.geometry.electrode import ElectrodeDesign
 
     rear = ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, split="front_rear",
                            split_overlap=1.0, resolution=1.0)
-    plan = _plan(field_cache, 6, rear)
+    plan = _plan((default_geometry, default_field), 6, rear)
     assert plan.axis_names == AXES6
     return plan
 
@@ -493,6 +488,7 @@ def test_plan_axes_must_be_the_machines(machine, machine4, machine6):
     assert err.value.code == ErrorCode.INVALID_REQUEST and "rotary axes ['B', 'C'] are none" in err.value.message
 
 
+@pytest.mark.slow
 def test_real_four_axis_plan_timed(plan4, machine4):
     """No A: the path's X, Y, Z, C are channel 0's and channel 3 is indexed outside the path."""
     from edm_planner.geometry.frames import rotation_about_x
@@ -526,6 +522,7 @@ def test_real_four_axis_plan_timed(plan4, machine4):
     check_trajectory(jp.timed, jp.positions, vmax(m, AXES4), amax(m, AXES4), jmax(m, AXES4))
 
 
+@pytest.mark.slow
 def test_real_six_axis_plan_timed_in_the_machine_joint_order(plan6, machine6):
     from edm_planner.machine.kinematics import axis_poses
     from edm_planner.machine.nc import nc_program, parse_nc
@@ -574,6 +571,7 @@ def test_real_six_axis_plan_timed_in_the_machine_joint_order(plan6, machine6):
     np.testing.assert_allclose(back["times"], j.times, rtol=1e-6, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_four_axis_nc_has_no_a_word(plan4, machine4):
     from edm_planner.machine.nc import nc_program, parse_nc
 

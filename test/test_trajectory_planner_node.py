@@ -11,13 +11,13 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from edm_planner.geometry.frames import rotation_about_x
-from edm_planner.geometry.loader import load_geometry
 from edm_planner.interference.exact_points import ExactChannelDistance, transform_points
 from edm_planner.nodes.conversions import pose_to_matrix
 from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode
 from edm_planner.nodes.trajectory_planner import TrajectoryPlannerNode
 
-from conftest import CONFIG
+pytestmark = pytest.mark.slow          # nodes over DDS that plan, or the whole product: not in make test-fast
+
 
 PITCH = 2 * np.pi / 60
 NAN = float("nan")
@@ -67,7 +67,7 @@ def rear_plan(system):
     return res
 
 
-def test_plan_of_the_rear_electrode_is_certified_and_complete(system, rear_plan):
+def test_plan_of_the_rear_electrode_is_certified_and_complete(system, rear_plan, default_geometry):
     res = rear_plan
     assert res.success, res.message
     assert res.error_code.val == ErrorCode.SUCCESS and res.plan_id
@@ -84,7 +84,7 @@ def test_plan_of_the_rear_electrode_is_certified_and_complete(system, rear_plan)
     np.testing.assert_allclose(q[-1], [0, 0, 0, 3 * PITCH, 0], atol=1e-9)
     assert q[0, 0] > 10.0                                   # starts downstream, outside the blisk
     last = pose_to_matrix(res.poses.poses[-1])
-    g = load_geometry(CONFIG / "default_blisk.yaml")
+    g = default_geometry
     assert res.export_path
     from edm_planner.geometry.electrode import design_electrodes
     from edm_planner.geometry.electrode import ElectrodeDesign as Design
