@@ -245,3 +245,13 @@ def bench_roughing(check_positions=5):
 
 
 SUITES["roughing"] = bench_roughing
+
+
+def bench_electrode_set():
+    """Issue 12: the automatic electrode set on three blisks (``edm_planner.bench.machining``)."""
+    from .machining import bench_electrode_set as run
+
+    return run()
+
+
+SUITES["electrode_set"] = bench_electrode_set

@@ -311,6 +311,10 @@ class SetDesigner:
             return False
         best = (plan, design)
         lo = 0.0                                   # radial first: the least shroud stock
+        if r_hi > 0:                               # none at all leaves none (and needs no plunges)
+            p, d = self._plan(piece, h_hi, 0.0)
+            if p is not None:
+                r_hi, best = 0.0, (p, d)
         while r_hi - lo > o.radial_resolution and not self._out_of_time():
             mid = 0.5 * (lo + r_hi)
             p, d = self._plan(piece, h_hi, mid)
