@@ -330,9 +330,18 @@ def time_leg(samples, axis_names, machine, options=TimingOptions(), final_pose=N
     -------
     JointTrajectoryArrays
         Velocity and acceleration zero at the first and the last point; every limit verified, also on the
-        quintics the controller runs through the end points.
+        quintics the controller runs through the end points. A two-sample leg (a short straight move) gets
+        its chord's middle as a third point (``timed.sample_index`` -1 there).
     """
+    samples = np.asarray(samples, dtype=np.float64)
+    inserted = len(samples) == 2 and not np.array_equal(samples[0], samples[1])
+    if inserted:
+        # toppra needs a grid point between two rests (else the speed is zero everywhere): the chord's middle,
+        # a point of the certified straight move; it is no plan sample (sample_index -1)
+        samples = np.vstack([samples[0], 0.5 * (samples[0] + samples[1]), samples[1]])
     arrays = plan_trajectory(samples, axis_names, machine, options, final_pose=final_pose)
+    if inserted:
+        arrays = replace(arrays, timed=replace(arrays.timed, sample_index=np.array([0, -1, 1])))
     return _rest_at_ends(arrays, machine.limits_for(arrays.axis_names), options)
 
 
@@ -380,7 +389,8 @@ def concatenate_legs(parts, marks):
     -------
     JointTrajectoryArrays
         With ``phases`` (a PhaseMark per leg) and a ``timed`` summary: peaks and deviations the largest of the
-        legs', ``time_scale`` the largest stretch, ``sample_index`` into the legs' samples stacked.
+        legs', ``time_scale`` the largest stretch, ``sample_index`` into the legs' samples chained (a shared
+        rest sample once, as ``MachiningCycle.samples``; -1 for a point inserted in a two-sample leg).
     """
     if not parts:
         raise EdmError(ErrorCode.INVALID_REQUEST, "nothing to concatenate: no legs")
@@ -408,8 +418,9 @@ def concatenate_legs(parts, marks):
         tpos.append(part.timed.positions[sl])
         tvel.append(part.timed.velocities[sl])
         tacc.append(part.timed.accelerations[sl])
-        index.append(part.timed.sample_index[sl] + sample_offset)
-        sample_offset += int(part.timed.sample_index[-1]) + 1
+        si = part.timed.sample_index[sl]
+        index.append(np.where(si >= 0, si + sample_offset, -1))
+        sample_offset += int(part.timed.sample_index[-1])
         count += len(part.times) - first
         offset = float(times[-1][-1])
     t0 = parts[0].timed

@@ -11,8 +11,26 @@ Machines of 4 (X, Y, Z, C), 5 (X, Y, Z, A, C) and 6 axes (X, Y, Z, A, C, B):
 plan's axes must be exactly the machine's (matched by planner axis name; the
 trajectory's joints are in the machine file's order).
 
-Error codes: UNKNOWN_ID (plan never seen), INVALID_REQUEST (channel does not
-match the plan, plan axes not the machine's), INFEASIBLE (travel or
+Cycles and sequences: a plan with a machining cycle (ChannelPlan ``leg_phases``
+non-empty, or a plan-store record with a cycle) is sent as its whole cycle
+(approach, feed, process, return, retract): each leg timed on its own, rest
+to rest, brought to full rest at its ends (velocity and acceleration zero, so
+a rest point shared by two legs is one trajectory point), every limit checked
+on every leg, and the legs concatenated into ONE JointTrajectory; the
+response lists the phases and their start times. A plan without a cycle is
+timed and sent as its feed, exactly as before cycles existed. A sequence id
+of the plan store (an electrode set, a whole-blisk program) is sent one
+electrode at a time: ``electrode`` k of the request selects the k-th run of
+consecutive steps with the same plan (the electrode in each of its channels,
+index legs turning A at the home point between channels); the trajectory ends
+at the home point before the next tool change, which the response names
+(``next_electrode``, phase ``tool_change`` at the end). Change the electrode,
+then ask for electrode k + 1.
+
+Error codes: UNKNOWN_ID (plan or sequence never seen), INVALID_REQUEST (channel
+does not match the plan or the electrode's first step, plan axes not the
+machine's, electrode index out of range, a sequence's plan without a cycle, a
+four-axis plan in another channel), INFEASIBLE (travel or
 velocity/acceleration limit violated, named with axis and time; or the machine's
 ``/joint_states`` is further from the plan's start than the tolerance).
 Nothing that violates a limit is ever published.
@@ -42,8 +60,10 @@ plan_wait : float
     (a plan published just before the request may still be on its way).
 export_dir : str
     When set, every timed plan (dry runs included: the way to get a program without moving
-    the machine) is also written there as ``<plan_id>.nc`` (ISO, G93 inverse time) and
-    ``<plan_id>.csv`` (timed axis samples); the response message names the files.
+    the machine) is also written there as ``<plan_id>.nc`` (ISO, G93 inverse time; a cycle's
+    phases marked) and ``<plan_id>.csv`` (timed axis samples; a cycle's with phase columns),
+    a sequence's electrode k as ``<sequence_id>.e<k>.nc`` / ``.csv``; the response message names
+    the files.
 plan_store : str
     Directory of the persistent plan store the planner writes ('' : ~/.local/share/edm_planner/plan_store,
     'none' : off). A plan id not seen on ``plan`` is looked up there first, so plans can be executed by id
@@ -69,9 +89,10 @@ from ..errors import EdmError, ErrorCode
 from ..geometry.frames import rotation_about_x
 from ..machine.config import LINEAR, default_machine_path, load_machine
 from ..machine.nc import nc_program, trajectory_csv
-from ..machine.trajectory import plan_trajectory
+from ..machine.trajectory import plan_trajectory, time_run
+from ..machining.program import PlanCycle, program_runs
 from ..planning.store import PlanStoreError
-from .conversions import error_code
+from .conversions import error_code, msg_to_cycle
 from .geometry_loader import LATCHED
 from .runtime import answer, declare_plan_store, spin_node
 
@@ -104,9 +125,10 @@ def joint_trajectory_msg(arrays, frame_id=""):
 
 
 class _KnownPlan:
-    __slots__ = ("plan_id", "channel", "geometry_id", "electrode_id", "axis_names", "samples", "final_pose")
+    __slots__ = ("plan_id", "channel", "geometry_id", "electrode_id", "axis_names", "samples", "final_pose", "cycle")
 
     def __init__(self, msg):
+        self.cycle = msg_to_cycle(msg)
         self.plan_id = msg.plan_id
         self.channel = int(msg.channel)
         self.geometry_id = msg.geometry_id
@@ -127,6 +149,10 @@ class _KnownPlan:
             # path, so the poses are those of channel 0 turned about X by the index angle
             final = rotation_about_x(-index_angle(self.samples[:, :3], msg.poses.poses)) @ final
         self.final_pose = final
+
+    def as_plan_cycle(self):
+        return PlanCycle(self.plan_id, self.geometry_id, self.electrode_id, self.channel, self.axis_names,
+                         self.final_pose, self.samples, self.cycle)
 
 
 def index_angle(xyz, poses):
@@ -195,23 +221,44 @@ class AxisBridgeNode(Node):
         # a plan published just before the request may still be on its way (or being read): wait a little
         with self._lock:
             plan = self.plans.get(request.plan_id)
-        store_note = ""
+        store_note, sequence = "", None
         if plan is None:       # made before this bridge started? the plan store has every certified plan
             plan, store_note = self._from_store(request.plan_id)
-        if plan is None:       # published just before the request: may still be on its way
+        if plan is None and not store_note:       # not a plan: a sequence of the store?
+            sequence, store_note = self._sequence_from_store(request.plan_id)
+        if plan is None and sequence is None:     # published just before the request: may still be on its way
             with self._arrived:
                 self._arrived.wait_for(lambda: request.plan_id in self.plans,
                                        timeout=float(self.get_parameter("plan_wait").value))
                 plan = self.plans.get(request.plan_id)
-        if plan is None:
-            raise EdmError(ErrorCode.UNKNOWN_ID, f"unknown plan id {request.plan_id!r}: not in the plan store"
-                                                 f"{store_note} and not seen on 'plan' (latest "
-                                                 f"{list(self.plans)[-5:]})")
-        if int(request.channel) != plan.channel:
-            raise EdmError(ErrorCode.INVALID_REQUEST, f"plan {plan.plan_id} is for channel {plan.channel}, "
-                                                      f"the request names channel {request.channel}")
-        arrays = plan_trajectory(plan.samples, plan.axis_names, self.machine, final_pose=plan.final_pose)
+        if plan is None and sequence is None:
+            raise EdmError(ErrorCode.UNKNOWN_ID, f"unknown plan id {request.plan_id!r}: neither a plan nor a "
+                                                 f"sequence in the plan store{store_note} and not seen on 'plan' "
+                                                 f"(latest {list(self.plans)[-5:]})")
+        response.electrode_count = 1
+        if sequence is not None:
+            arrays, what, export_name = self._sequence_trajectory(sequence, request, response)
+        else:
+            if int(request.channel) != plan.channel:
+                raise EdmError(ErrorCode.INVALID_REQUEST, f"plan {plan.plan_id} is for channel {plan.channel}, "
+                                                          f"the request names channel {request.channel}")
+            if int(request.electrode):
+                raise EdmError(ErrorCode.INVALID_REQUEST, f"{plan.plan_id} is a plan (one electrode), not a "
+                                                          f"sequence: electrode must be 0, got {request.electrode}")
+            what, export_name = f"plan {plan.plan_id} channel {plan.channel}", plan.plan_id
+            if plan.cycle is None:
+                arrays = plan_trajectory(plan.samples, plan.axis_names, self.machine, final_pose=plan.final_pose)
+            else:
+                pc = plan if isinstance(plan, PlanCycle) else plan.as_plan_cycle()
+                arrays = time_run(program_runs([(pc.plan_id, pc.channel)], {pc.plan_id: pc})[0].legs,
+                                  self.machine)
+                what += f" whole cycle ({len(plan.cycle.legs)} legs)"
         self._check_start_state(arrays)
+        _fill_phases(response, arrays)
+        if sequence is not None and response.next_electrode:
+            response.phase_names.append("tool_change")
+            response.phase_start_times.append(float(arrays.duration))
+            response.phase_channels.append(int(response.phase_channels[-1]))
         timed = arrays.timed
         response.duration = float(arrays.duration)
         response.point_count = len(arrays.times)
@@ -220,14 +267,16 @@ class AxisBridgeNode(Node):
         response.peak_acceleration = [float(v) for v in timed.peak_acceleration]
         dev = timed.deviation_between_samples
         linear = np.array([a in LINEAR for a in arrays.axis_names])
-        summary = (f"plan {plan.plan_id} channel {plan.channel}: {response.point_count} points, "
+        summary = (f"{what}: {response.point_count} points, "
                    f"{response.duration:.3f} s (uniform time stretch {timed.time_scale:.4f} to meet the "
                    f"velocity, acceleration and jerk limits), "
                    f"deviation from the certified chords <= {dev[linear].max() * 1e3:.3f} um "
                    f"/ {dev[~linear].max() if (~linear).any() else 0.0:.2e} rad")
         export_dir = self.get_parameter("export_dir").value
         if export_dir:
-            summary += "; " + self._export(plan, arrays, export_dir)
+            summary += "; " + self._export(export_name, arrays, export_dir, sequence or plan)
+        if response.next_electrode:
+            summary += f"; then change the electrode: next {response.next_electrode} (electrode {request.electrode + 1})"
         if not request.dry_run:
             self.trajectory_pub.publish(joint_trajectory_msg(arrays))
             summary += f"; sent on {self.trajectory_pub.topic_name} as joints {arrays.joint_names}"
@@ -239,24 +288,77 @@ class AxisBridgeNode(Node):
         self.get_logger().info(summary)
 
     def _from_store(self, plan_id):
-        """(plan, '') from the plan store, or (None, why not) ."""
+        """(plan, '') from the plan store (a PlanCycle, with the record's cycle), or (None, why not) ."""
         if self.store is None:
             return None, f" ({self.store_error})" if self.store_error else " (no plan store configured)"
         try:
-            plan = self.store.get(plan_id)
+            stored = self.store.get(plan_id)
         except PlanStoreError as exc:
             self.get_logger().error(exc.message)
             return None, f" ({exc.message})"
-        if plan is not None:
-            self.get_logger().info(f"plan {plan_id} read from the plan store {self.store.path}")
-        return plan, ""
+        if stored is None:
+            return None, ""
+        self.get_logger().info(f"plan {plan_id} read from the plan store {self.store.path}")
+        return PlanCycle.of_stored(stored), ""
 
-    def _export(self, plan, arrays, directory):
+    def _sequence_from_store(self, sequence_id):
+        """(StoredSequence, '') or (None, why not)."""
+        if self.store is None:
+            return None, ""
+        try:
+            return self.store.get_sequence(sequence_id), ""
+        except PlanStoreError as exc:
+            self.get_logger().error(exc.message)
+            return None, f" ({exc.message})"
+
+    def _plan_of_sequence(self, plan_id, sequence_id):
+        with self._lock:
+            known = self.plans.get(plan_id)
+        if known is not None and known.cycle is not None:
+            return known.as_plan_cycle()
+        plan, note = self._from_store(plan_id)
+        if plan is None:
+            raise EdmError(ErrorCode.UNKNOWN_ID, f"sequence {sequence_id}: its plan {plan_id} is not in the plan "
+                                                 f"store{note}")
+        return plan
+
+    def _sequence_trajectory(self, sequence, request, response):
+        """The trajectory of electrode ``request.electrode`` of a sequence; (arrays, summary head, export name)."""
+        plans = {p: self._plan_of_sequence(p, sequence.sequence_id) for p in sequence.plan_ids}
+        blade_count = sequence.meta.get("blade_count")
+        pitch = 2 * math.pi / int(blade_count) if blade_count else None
+        runs = program_runs(sequence.steps, plans, pitch)
+        k = int(request.electrode)
+        if k >= len(runs):
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"{sequence.kind} {sequence.sequence_id} has {len(runs)} "
+                                                      f"electrode(s) (0 .. {len(runs) - 1}); electrode {k} asked for")
+        run = runs[k]
+        if int(request.channel) != run.channels[0]:
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"electrode {k} ({run.label}) of {sequence.kind} "
+                                                      f"{sequence.sequence_id} starts in channel {run.channels[0]}, "
+                                                      f"the request names channel {request.channel}")
+        arrays = time_run(run.legs, self.machine)
+        response.electrode_count = len(runs)
+        if k + 1 < len(runs):
+            nxt = runs[k + 1]
+            response.next_electrode = f"{nxt.label} (plan {nxt.plan.plan_id})"
+        channels = run.channels
+        span = f"channels {channels[0]}..{channels[-1]}" if len(channels) > 1 else f"channel {channels[0]}"
+        what = (f"{sequence.kind} {sequence.sequence_id} electrode {k + 1} of {len(runs)} ({run.label}, plan "
+                f"{run.plan.plan_id}, {span})")
+        return arrays, what, f"{sequence.sequence_id}.e{k}"
+
+    def _export(self, name, arrays, directory, source):
         try:
             os.makedirs(directory, exist_ok=True)
-            base = os.path.join(directory, plan.plan_id)
+            base = os.path.join(directory, name)
             with open(base + ".nc", "w") as f:
-                f.write(nc_program(arrays, plan.plan_id, plan.geometry_id, plan.channel, plan.electrode_id))
+                if hasattr(source, "steps"):           # one electrode of a sequence
+                    f.write(nc_program(arrays, name, source.geometry_id, arrays.phases[0].channel,
+                                       arrays.phases[0].electrode_id))
+                else:
+                    f.write(nc_program(arrays, source.plan_id, source.geometry_id, source.channel,
+                                       source.electrode_id))
             with open(base + ".csv", "w") as f:
                 f.write(trajectory_csv(arrays))
         except OSError as exc:
@@ -282,6 +384,17 @@ class AxisBridgeNode(Node):
                                f"start state: joint {joint} (axis {axis}) is at {positions[joint]:.6g} {unit}, the "
                                f"plan starts at {arrays.positions[0, j]:.6g} {unit} (tolerance {tol:g} {unit}); "
                                f"move the machine to the plan's start first")
+
+
+def _fill_phases(response, arrays):
+    """Phase names, start times and channels of a timed cycle (consecutive legs of one phase merged)."""
+    for mark in arrays.phases:
+        if response.phase_names and response.phase_names[-1] == mark.phase and \
+                response.phase_channels[-1] == mark.channel:
+            continue
+        response.phase_names.append(mark.phase)
+        response.phase_start_times.append(float(mark.time))
+        response.phase_channels.append(int(mark.channel))
 
 
 def _default_machine_file():

@@ -126,3 +126,86 @@ def design_override(msg, base):
     if not all(np.isfinite(v) for v in changes.values() if isinstance(v, float)):
         raise EdmError(CoreErrorCode.INVALID_REQUEST, "electrode design values must be finite numbers")
     return replace(base, **changes)
+
+
+# -- machining cycles and the removal proof ---------------------------------------------------
+
+def cycle_fields(cycle, set_id=""):
+    """The ChannelPlan fields of a MachiningCycle (None: empty cycle, NaN margin), as a dict of keyword args."""
+    from edm_planner_msgs.msg import AxisPath, AxisPoint
+
+    if cycle is None:
+        return {"cycle_margin": float("nan"), "set_id": set_id or ""}
+    samples = cycle.samples
+    return {"cycle_path": AxisPath(axis_names=list(cycle.axis_names),
+                                   points=[AxisPoint(positions=row) for row in samples.tolist()]),
+            "leg_phases": [leg.phase for leg in cycle.legs], "leg_labels": [leg.label for leg in cycle.legs],
+            "leg_last": [int(b) for _, _, _, b in cycle.leg_ranges],
+            "leg_min_clearance": [float(v) for leg in cycle.legs for v in np.asarray(leg.min_clearance).reshape(4)],
+            "cycle_margin": float(cycle.margin), "cycle_certified": bool(cycle.certified),
+            "cycle_message": cycle.message, "set_id": set_id or ""}
+
+
+def cycle_to_msg(msg, cycle, set_id=""):
+    """Fill a ChannelPlan message's cycle fields from a MachiningCycle (or leave them empty for None)."""
+    for key, value in cycle_fields(cycle, set_id).items():
+        setattr(msg, key, value)
+    return msg
+
+
+def msg_to_cycle(msg):
+    """The MachiningCycle of a ChannelPlan message (legs rebuilt from cycle_path and leg_last), or None."""
+    from ..machining.cycle import Leg, MachiningCycle, ProcessReach
+
+    if not msg.leg_phases:
+        return None
+    names = tuple(msg.cycle_path.axis_names)
+    samples = np.array([p.positions for p in msg.cycle_path.points], dtype=np.float64).reshape(-1, len(names))
+    last = [int(v) for v in msg.leg_last]
+    n = len(msg.leg_phases)
+    if len(msg.leg_labels) != n or len(last) != n or (last and last[-1] != len(samples) - 1) or \
+            any(b <= a for a, b in zip([0] + last, last)):
+        raise EdmError(CoreErrorCode.INVALID_REQUEST,
+                       f"plan {msg.plan_id}: cycle fields do not agree ({n} phases, {len(msg.leg_labels)} labels, "
+                       f"leg_last {last[:5]}..., {len(samples)} cycle samples)")
+    clear = np.array(msg.leg_min_clearance, dtype=np.float64)
+    clear = clear.reshape(n, 4) if clear.size == 4 * n else np.full((n, 4), np.nan)
+    legs, first = [], 0
+    for i, (phase, label, b) in enumerate(zip(msg.leg_phases, msg.leg_labels, last)):
+        legs.append(Leg(phase, label, samples[first:b + 1].copy(), clear[i].copy()))
+        first = b
+    return MachiningCycle(names, legs, ProcessReach(), float(msg.cycle_margin), bool(msg.cycle_certified),
+                          msg.cycle_message)
+
+
+_SURFACE_ORDER = ("suction", "pressure", "hub", "shroud")
+
+
+def machining_figures(cycle, removal):
+    """The PlanMetrics machining fields (dict of keyword args) of a cycle and a removal proof (``to_dict()``).
+
+    NaN, False and empty where there is no cycle or no proof.
+    """
+    nan = float("nan")
+    out = {"machining_margin": nan if cycle is None else float(cycle.margin),
+           "cycle_certified": bool(cycle is not None and cycle.certified),
+           "stock_tolerance": nan, "stock_max_exact": [], "stock_mean": [], "stock_area_fraction_above": [],
+           "overcut_max": [], "stock_sample_spacing": nan, "stock_continuous_bound": nan}
+    if not removal:
+        return out
+    surfaces = removal.get("surfaces") or {}
+
+    def per_surface(key):
+        return [nan if surfaces.get(s, {}).get(key) is None else float(surfaces[s][key]) for s in _SURFACE_ORDER]
+
+    def number(value):
+        return nan if value is None else float(value)
+
+    accuracy = removal.get("accuracy") or {}
+    out.update(stock_tolerance=number(removal.get("tolerance_mm")), stock_max_exact=per_surface("stock_max_mm"),
+               stock_mean=per_surface("stock_mean_mm"),
+               stock_area_fraction_above=per_surface("area_fraction_above_tolerance"),
+               overcut_max=per_surface("overcut_max_mm"),
+               stock_sample_spacing=number(accuracy.get("sample_spacing_mm")),
+               stock_continuous_bound=number(accuracy.get("continuous_bound_mm")))
+    return out
