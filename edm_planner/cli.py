@@ -84,8 +84,17 @@ def _parser():
     x = sub.add_parser("export", help="time a plan on a machine and write the NC program and the timed CSV",
                        description="Time a certified plan (toppra, the machine's velocity, acceleration and jerk "
                                    "limits) and write <plan_id>.nc (ISO G21 G90 G93 G01, inverse-time feed) and "
-                                   "<plan_id>.csv (time, then position, velocity, acceleration per axis).")
-    x.add_argument("source", metavar="PLAN", help="a plan export directory, or a plan id in the plan store")
+                                   "<plan_id>.csv (time, then position, velocity, acceleration per axis). A plan "
+                                   "with a machining cycle is written whole (approach, feed, process, return, "
+                                   "retract; each leg timed rest to rest, '(PHASE ...)' lines, phase columns). An "
+                                   "electrode set (its directory or id) is written as one program, a tool change "
+                                   "(T M06) before each electrode; with --all-channels the whole blisk: each "
+                                   "electrode through every channel (A indexed at the home point), then the next.")
+    x.add_argument("source", metavar="PLAN",
+                   help="a plan export directory, an electrode-set directory (set.json, from `edm-plan plan` "
+                        "without a design), or a plan, set or program id in the plan store")
+    x.add_argument("--all-channels", action="store_true",
+                   help="the whole-blisk program of the source's electrode set: one NC program and one CSV")
     x.add_argument("--machine", metavar="FILE.yaml", help="machine file (default: config/machine.yaml)")
     x.add_argument("--out", metavar="DIR", help="where the files go (default: the export directory, or .)")
     x.add_argument("--format", choices=("nc", "csv", "both"), default="both")
@@ -313,7 +322,7 @@ def _plan_set(args, geometry, options, store, progress, out):
         progress(stage, fraction, 0, 0.0, message)
 
     designer = SetDesigner(geometry, field, options, SetOptions(time_budget=max(args.time_budget, 60.0) * 15),
-                           progress=on_set)
+                           progress=on_set, field_cache=(args.cache_dir, geometry.geometry_id))
     result = designer.design(args.channel)
     path = write_set(result, args.out, geometry.blisk, store)
     progress.close()
@@ -339,53 +348,149 @@ def _plan_set(args, geometry, options, store, progress, out):
     return 0
 
 
-def _plan_source(source, store_dir):
-    """(plan id, geometry id, channel, electrode id, axis names, samples, channel-0 final pose) of a plan."""
-    import pathlib
-
+def _exported_plan(path):
+    """(PlanCycle with the export's cycle, blade count) of a plan export directory."""
+    from .machining.program import PlanCycle, read_exported_cycle
     from .planning.export import read_plan
 
-    if pathlib.Path(source).is_dir():
-        p = read_plan(source)
-        return (p.doc["plan_id"], p.geometry_id, p.channel, p.doc.get("electrode_id", ""), p.axis_names, p.axes,
-                p.final_pose)
+    p = read_plan(path)
+    cycle = read_exported_cycle(p.path, p.doc)
+    plan = PlanCycle(p.doc["plan_id"], p.geometry_id, p.doc.get("electrode_id", ""), p.channel, p.axis_names,
+                     p.final_pose, p.axes, cycle)
+    return plan, p.doc.get("blade_count")
+
+
+def _export_job(source, store_dir, all_channels):
+    """What to export: dict(name, geometry_id, kind 'plan' | 'electrode_set' | 'blisk_program', plans, steps, pitch)."""
+    import json
+    import math
+    import pathlib
+
+    from .machining.program import PlanCycle, blisk_program_steps
+
+    def whole(kind, name, plans, steps, blade_count, program_name=None):
+        if not all_channels or kind == "blisk_program":
+            pitch = 2 * math.pi / blade_count if blade_count else None
+            return dict(name=name, kind=kind, plans=plans, steps=steps, pitch=pitch)
+        if not blade_count:
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"{name}: the blade count is unknown, so are the channels "
+                                                      f"(export the set's directory or its program id instead)")
+        ids = list(dict.fromkeys(p for p, _ in steps))
+        return dict(name=program_name or f"{name}.blisk", kind="blisk_program", plans=plans,
+                    steps=blisk_program_steps(ids, blade_count), pitch=2 * math.pi / blade_count)
+
+    path = pathlib.Path(source)
+    if path.is_dir() and (path / "set.json").is_file():
+        try:
+            doc = json.loads((path / "set.json").read_text())
+            electrodes = doc["electrodes"]
+            entries = [(e["plan_id"], path / e["export"]) for e in sorted(electrodes, key=lambda e: e["order"])]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise EdmError(ErrorCode.FILE_ERROR, f"{path / 'set.json'}: not an electrode set with its electrodes "
+                                                 f"({exc!r}); was a set chosen?") from None
+        plans, counts = {}, set()
+        for plan_id, where in entries:
+            plan, count = _exported_plan(where)
+            if plan.plan_id != plan_id:
+                raise EdmError(ErrorCode.FILE_ERROR, f"{where}: holds plan {plan.plan_id}, set.json names {plan_id}")
+            plans[plan_id], counts = plan, counts | {count}
+        if len(counts) != 1 or None in counts:
+            raise EdmError(ErrorCode.FILE_ERROR, f"{path}: the electrodes' plan.json give blade counts {counts}")
+        first = plans[entries[0][0]]
+        name = doc.get("set_id") or f"set_{first.plan_id}"
+        job = whole("electrode_set", name, plans, [(p, plans[p].channel) for p, _ in entries], counts.pop(),
+                    doc.get("program_id"))
+        return dict(job, geometry_id=first.geometry_id)
+    if path.is_dir():
+        plan, count = _exported_plan(path)
+        job = whole("plan", plan.plan_id, {plan.plan_id: plan}, [(plan.plan_id, plan.channel)], count)
+        return dict(job, geometry_id=plan.geometry_id)
     store = open_store(store_dir)
+    where = store.path if store else "(none)"
     stored = store.get(source) if store is not None else None
-    if stored is None:
+    if stored is not None:
+        if all_channels:
+            hint = f" (plan {source} belongs to set {stored.meta['set_id']}: export that)" \
+                if stored.meta.get("set_id") else ""
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"--all-channels takes an electrode set: a set directory, or a "
+                                                      f"set or program id of the store{hint}")
+        plan = PlanCycle.of_stored(stored)
+        return dict(name=plan.plan_id, kind="plan", plans={plan.plan_id: plan}, steps=[(plan.plan_id, plan.channel)],
+                    pitch=None, geometry_id=plan.geometry_id)
+    seq = store.get_sequence(source) if store is not None else None
+    if seq is None:
         raise EdmError(ErrorCode.UNKNOWN_ID, f"{source!r} is neither a plan export directory nor a plan id in the "
-                                             f"plan store {store.path if store else '(none)'}; "
-                                             f"`edm-plan store list` shows the stored plans")
-    return (stored.plan_id, stored.geometry_id, stored.channel, stored.electrode_id, stored.axis_names,
-            stored.samples, stored.final_pose)
+                                             f"plan store {where} (nor an electrode-set directory, a set id or a "
+                                             f"program id); `edm-plan store list` shows the stored plans")
+    plans = {}
+    for plan_id in seq.plan_ids:
+        rec = store.get(plan_id)
+        if rec is None:
+            raise EdmError(ErrorCode.UNKNOWN_ID, f"{seq.kind} {seq.sequence_id}: its plan {plan_id} is not in the "
+                                                 f"plan store {where}")
+        plans[plan_id] = PlanCycle.of_stored(rec)
+    blade_count = seq.meta.get("blade_count")
+    program = seq.meta.get("program_id")
+    if not blade_count and program:
+        other = store.get_sequence(program)
+        blade_count = other.meta.get("blade_count") if other is not None else None
+    job = whole(seq.kind, seq.sequence_id, plans, seq.steps, blade_count, program)
+    return dict(job, geometry_id=seq.geometry_id)
 
 
 def _export(args, out):
     import pathlib
 
-    from .machine.config import default_machine_path, load_machine
-    from .machine.nc import nc_program, trajectory_csv
-    from .machine.trajectory import plan_trajectory
+    import numpy as np
 
-    plan_id, geometry_id, channel, electrode_id, names, samples, final_pose = _plan_source(args.source, args.store)
+    from .machine.config import default_machine_path, load_machine
+    from .machine.nc import nc_program, nc_sequence_program, program_csv, trajectory_csv
+    from .machine.trajectory import plan_trajectory, time_run
+    from .machining.program import program_runs
+
+    job = _export_job(args.source, args.store, args.all_channels)
     machine_file = args.machine or str(default_machine_path())
     machine = load_machine(machine_file)
-    arrays = plan_trajectory(samples, names, machine, final_pose=final_pose)
+    name = job["name"]
+    plan = job["plans"][job["steps"][0][0]]
+    if job["kind"] == "plan" and plan.cycle is None:                  # a feed-only plan: as it always was
+        arrays = plan_trajectory(plan.samples, plan.axis_names, machine, final_pose=plan.final_pose)
+        nc = nc_program(arrays, plan.plan_id, plan.geometry_id, plan.channel, plan.electrode_id)
+        table, timed, what = trajectory_csv(arrays), [arrays], "feed"
+    elif job["kind"] == "plan":
+        runs = program_runs(job["steps"], job["plans"], job["pitch"])
+        arrays = time_run(runs[0].legs, machine)
+        nc = nc_program(arrays, plan.plan_id, plan.geometry_id, plan.channel, plan.electrode_id)
+        table, timed, what = trajectory_csv(arrays), [arrays], f"whole cycle, {len(plan.cycle.legs)} legs"
+    else:
+        runs = program_runs(job["steps"], job["plans"], job["pitch"])
+        cache = {}
+        timed = [time_run(r.legs, machine, cache=cache) for r in runs]
+        nc = nc_sequence_program([(a, r.label, r.plan.plan_id) for a, r in zip(timed, runs)], name,
+                                 job["geometry_id"], job["kind"])
+        table = program_csv(timed)
+        channels = sorted({c for r in runs for c in r.channels})
+        what = (f"{job['kind'].replace('_', ' ')}: {len(runs)} electrode(s) "
+                f"({', '.join(r.label for r in runs)}) in {len(channels)} channel(s), {len(runs)} tool change(s)")
     where = pathlib.Path(args.out or (args.source if pathlib.Path(args.source).is_dir() else "."))
     files = []
     try:
         where.mkdir(parents=True, exist_ok=True)
         if args.format in ("nc", "both"):
-            files.append(where / f"{plan_id}.nc")
-            files[-1].write_text(nc_program(arrays, plan_id, geometry_id, channel, electrode_id))
+            files.append(where / f"{name}.nc")
+            files[-1].write_text(nc)
         if args.format in ("csv", "both"):
-            files.append(where / f"{plan_id}.csv")
-            files[-1].write_text(trajectory_csv(arrays))
+            files.append(where / f"{name}.csv")
+            files[-1].write_text(table)
     except OSError as exc:
         raise EdmError(ErrorCode.FILE_ERROR, f"cannot write to {where}: {exc}") from None
-    timed = arrays.timed
-    peaks = ", ".join(f"{a} {v:.4g}" for a, v in zip(arrays.axis_names, timed.peak_velocity))
-    print(f"plan {plan_id} on machine {machine.name!r} ({machine_file}): {len(arrays.times)} points, "
-          f"{arrays.duration:.3f} s; peak velocity [mm/s, rad/s]: {peaks}", file=out)
+    points = sum(len(a.times) for a in timed)
+    duration = sum(a.duration for a in timed)
+    peaks = ", ".join(f"{a} {v:.4g}" for a, v in zip(timed[0].axis_names,
+                                                   np.max([t.timed.peak_velocity for t in timed], axis=0)))
+    print(f"{name} on machine {machine.name!r} ({machine_file}): {what}; {points} points, {duration:.3f} s"
+          + (" without tool changes" if len(timed) > 1 else "") + f"; peak velocity [mm/s, rad/s]: {peaks}",
+          file=out)
     for f in files:
         print(f"wrote {f}", file=out)
     return 0

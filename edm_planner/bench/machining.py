@@ -51,7 +51,7 @@ def bench_electrode_set(blisks=BLISKS):
         g = load_geometry(CONFIG / f"{name}.yaml")
         field = FastChannelField(g.blisk, spacing=0.1, cache_dir=cache, cache_key=g.geometry_id)
         t = time.perf_counter()
-        result = SetDesigner(g, field).design(0)
+        result = SetDesigner(g, field, field_cache=(cache, g.geometry_id)).design(0)
         design_s = time.perf_counter() - t
         entry = {"design_s": round(design_s, 1), "message": result.message[:600],
                  "candidates": {c.name: {"status": c.status, "reason": c.reason[:300]} for c in result.candidates}}

@@ -25,6 +25,7 @@ shortest cycle. Every candidate tried is reported with why it was rejected.
 import hashlib
 import json
 import logging
+import os
 import time
 from dataclasses import asdict, dataclass, field, replace
 
@@ -216,9 +217,15 @@ class SetDesigner:
     cycle_options : CycleOptions
     progress : callable, optional
         ``progress(stage, fraction, message)``.
+    field_cache : (str, str), optional
+        (cache directory, cache key) of ``field``: with it the pieces of a
+        candidate are sized in parallel worker processes (``workers``, default
+        the CPU count), each loading the field from that cache.
+    workers : int, optional
     """
 
-    def __init__(self, geometry, field, plan_options=None, options=None, cycle_options=None, progress=None):
+    def __init__(self, geometry, field, plan_options=None, options=None, cycle_options=None, progress=None,
+                 field_cache=None, workers=None):
         self.geometry = geometry
         self.blisk = geometry.blisk
         self.field = field
@@ -235,6 +242,9 @@ class SetDesigner:
                            f"{base.discharge_gap:g} mm")
         self.plan_options = self.machining_plan_options(plan_options, base, self.options)
         self.progress = progress
+        self.field_cache = field_cache
+        self.workers = int(workers or os.cpu_count() or 1)
+        self._pool = None
         self.t0 = None
         self._where, self._name = (0, 1, 0, 1), ""
         b = self.blisk
@@ -372,6 +382,12 @@ class SetDesigner:
     # -- the whole design ----------------------------------------------------------------------------
     def design(self, channel=0):
         """Design, prove and choose; the chosen pieces' plans and cycles moved to ``channel``."""
+        try:
+            return self._design(channel)
+        finally:
+            self.close()
+
+    def _design(self, channel):
         self.t0 = time.perf_counter()
         self._report(0.0, "the axial range the electrodes can fill")
         self.base = replace(self.base, axial_range=self.closed_channel_range())
@@ -413,11 +429,55 @@ class SetDesigner:
         self._report(1.0, result.message)
         return result
 
+    def _size_all(self, cand, index, count):
+        """Size every piece of a candidate: in the worker processes when there are several, else here."""
+        pool = self._workers_pool() if len(cand.pieces) > 1 else None
+        if pool is None:
+            done = []
+            for j, piece in enumerate(cand.pieces):
+                self._where = (index, count, j, len(cand.pieces))
+                done.append(self.size_piece(piece))
+            return done
+        self._report(index / count, f"{cand.name}: sizing {len(cand.pieces)} electrodes in {self.workers} "
+                                     f"worker processes")
+        remaining = self.options.time_budget - self._elapsed()
+        futures = [pool.submit(_size_in_worker, piece, remaining) for piece in cand.pieces]
+        done = []
+        for j, future in enumerate(futures):
+            ok, sized = future.result()
+            cand.pieces[j] = sized
+            done.append(ok)
+            self._report((index + (j + 1) / len(futures) * 0.9) / count,
+                         f"{cand.name}: {sized.label} electrode {'sized' if ok else 'has no certified path'}")
+        return done
+
+    def _workers_pool(self):
+        if self.field_cache is None or self.workers < 2:
+            return None
+        if self._pool is None:
+            import multiprocessing
+            import pickle
+            from concurrent.futures import ProcessPoolExecutor
+
+            # spawn, not fork: the caller may be a multi-threaded ROS node
+            self._pool = ProcessPoolExecutor(
+                max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
+                initializer=_start_worker,
+                initargs=(pickle.dumps(self.geometry), self.field.spacing, self.field_cache, self.plan_options,
+                          self.options, self.cycle_options, self.base))
+        return self._pool
+
+    def close(self):
+        """Stop the worker processes (if any)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
     def _evaluate(self, cand, index=0, count=1):
         self._name = cand.name
-        for j, piece in enumerate(cand.pieces):
-            self._where = (index, count, j, len(cand.pieces))
-            if not self.size_piece(piece):
+        sized = self._size_all(cand, index, count)
+        for piece, ok in zip(cand.pieces, sized):
+            if not ok:
                 last = piece.tried[-1][2] if piece.tried else "not planned"
                 cand.status, cand.reason = "infeasible", f"the {piece.label} electrode has no certified path ({last})"
                 return
@@ -441,6 +501,29 @@ class SetDesigner:
         else:
             cand.status = "accepted"
             cand.reason = f"machines the channel to {self.options.tolerance:g} mm; {figures}"
+
+
+_WORKER = None
+
+
+def _start_worker(geometry_blob, spacing, field_cache, plan_options, options, cycle_options, base):
+    """Worker process: the geometry, its field from the cache and a designer of its own."""
+    import pickle
+
+    from ..interference.fast import FastChannelField
+
+    global _WORKER
+    geometry = pickle.loads(geometry_blob)
+    field = FastChannelField(geometry.blisk, spacing=spacing, cache_dir=field_cache[0], cache_key=field_cache[1])
+    _WORKER = SetDesigner(geometry, field, plan_options, options, cycle_options)
+    _WORKER.base = base
+
+
+def _size_in_worker(piece, remaining):
+    """Size one piece in a worker; (ok, the piece with its plan and cycle)."""
+    _WORKER.t0 = time.perf_counter() - (_WORKER.options.time_budget - remaining)
+    ok = _WORKER.size_piece(piece)
+    return ok, piece
 
 
 def removal_figures(report):

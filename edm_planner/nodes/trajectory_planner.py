@@ -390,8 +390,10 @@ class TrajectoryPlannerNode(Node):
                 self.progress_pub.publish(PlanProgress(request_id=request_id, stage=stage,
                                                        fraction=float(fraction), message=message))
 
+            cache = self.get_parameter("cache_dir").value or os.path.join(os.path.expanduser("~"), ".cache",
+                                                                            "edm_planner")
             designer = SetDesigner(prepared.geometry, prepared.field, options, set_options, cycle_options,
-                                   progress=progress)
+                                   progress=progress, field_cache=(cache, gid))
             result = designer.design(int(request.channel))
             meta = result.to_dict()
             meta["labels"] = [p.label for p in result.chosen.pieces] if result.chosen else []
