@@ -335,7 +335,7 @@ class TrajectoryPlannerNode(Node):
         response.error_code = error_code(plan.error_code)
         response.message = plan.message + note
         response.plan_id = plan.plan_id
-        response.metrics = metrics_to_msg(plan.metrics)
+        response.metrics = metrics_to_msg(plan.metrics, plan.cycle, plan.removal)
         response.furthest_node = int(plan.furthest_node)
         response.furthest_reference = float(plan.furthest_reference)
         response.blocking_surface = plan.blocking_surface
@@ -415,7 +415,7 @@ class TrajectoryPlannerNode(Node):
         labels = meta.get("labels") or [p.electrode_id for p in plans]
         response.plan_ids = [p.plan_id for p in plans]
         response.electrode_labels = list(labels)
-        response.metrics = [metrics_to_msg(p.metrics) for p in plans]
+        response.metrics = [metrics_to_msg(p.metrics, p.cycle, p.removal) for p in plans]
         if request.write_export and designer is not None:
             root = self.get_parameter("export_dir").value or os.path.join(
                 os.path.expanduser("~"), ".local", "share", "edm_planner", "plans")

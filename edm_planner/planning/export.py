@@ -228,6 +228,10 @@ def write_plan(plan, out_dir, blisk, workpiece_resolution=0.5):
             doc["cycle"]["phases"] = [{"phase": p, "first": a, "last": b} for p, a, b in plan.cycle.phase_ranges]
             doc["files"]["cycle"] = {"name": FILES["cycle"], "sha256": _sha256(cycle_file),
                                      "samples": int(len(plan.cycle.samples))}
+        if getattr(plan, "removal", None) is not None:
+            # the material-removal proof of the electrode set this plan belongs to
+            doc["removal"] = json_safe(plan.removal)
+            doc["set_id"] = getattr(plan, "set_id", "")
         path = out / FILES["plan"]
         _write_atomic(path, json.dumps(doc, indent=1, allow_nan=False))
     except OSError as exc:
