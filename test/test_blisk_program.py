@@ -123,6 +123,7 @@ def test_sequences_round_trip_and_are_checked(rear, tmp_path):
     assert store.get_sequence("nope") is None
     assert {r["sequence_id"]: r["kind"] for r in store.list_sequences()} == {sid: "blisk_program",
                                                                           "set1": "electrode_set"}
+    assert store.list_sequences(limit=1)[0]["sequence_id"] in (sid, "set1")
     # bad input, named
     with pytest.raises(EdmError) as e:
         store.put_sequence("x", "whole_blisk", steps)
@@ -132,6 +133,15 @@ def test_sequences_round_trip_and_are_checked(rear, tmp_path):
     assert e.value.code == ErrorCode.UNKNOWN_ID and "0000000000000000" in e.value.message
     with pytest.raises(EdmError) as e:
         store.put_sequence("x", "electrode_set", [])
+    assert e.value.code == ErrorCode.INVALID_REQUEST
+    # a complete program gives its blade count; a partial one must name it (the index turns depend on it)
+    assert store.put_sequence("p", "blisk_program", steps).meta["blade_count"] == 3
+    with pytest.raises(EdmError) as e:
+        store.put_sequence("x", "blisk_program", steps[:3] + steps[3:5])        # the second electrode stops
+    assert e.value.code == ErrorCode.INVALID_REQUEST and "blade_count" in e.value.message
+    assert store.put_sequence("x", "blisk_program", steps[:2], {"blade_count": 60}).meta["blade_count"] == 60
+    with pytest.raises(EdmError) as e:
+        store.put_sequence("x", "blisk_program", steps, {"blade_count": 2})
     assert e.value.code == ErrorCode.INVALID_REQUEST
     # a damaged sequence record is refused, not guessed at
     con = sqlite3.connect(tmp_path / "plans.sqlite")
@@ -294,3 +304,92 @@ def test_a_program_leaving_the_a_travel_is_refused(rear, machine, tmp_path):
     arrays = time_run(runs[0].legs, machine)
     ia = list(arrays.axis_names).index("A")
     assert arrays.positions[:, ia].max() > 6.0 and sum(m.phase == INDEX for m in arrays.phases) == 59
+
+
+# -- edm-plan export -----------------------------------------------------------------------------
+
+def _run(argv):
+    import io
+
+    from edm_planner.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    rc = main(argv, out=out, err=err)
+    return rc, out.getvalue(), err.getvalue()
+
+
+def _set_dir(rear, root):
+    """An electrode-set directory as `edm-plan plan` writes it (write_set): two electrode exports and set.json."""
+    from edm_planner.planning.export import write_plan
+
+    g, electrode, plan = rear
+    front = _second(plan)
+    write_plan(front, root / "front", g.blisk)
+    write_plan(plan, root / "rear", g.blisk)
+    (root / "set.json").write_text(json.dumps({
+        "format": "edm_planner.electrode_set/1", "set_id": "5" * 16, "program_id": "9" * 16,
+        "electrodes": [{"order": 1, "label": "rear", "plan_id": plan.plan_id, "export": "rear"},
+                       {"order": 0, "label": "front", "plan_id": front.plan_id, "export": "front"}]}))
+    return front
+
+
+def test_export_a_plan_with_its_cycle_and_an_electrode_set(rear, tmp_path):
+    g, electrode, plan = rear
+    front = _set_dir(rear, tmp_path / "set")
+    # one plan export: the whole cycle, phases marked, the CSV with its phase columns
+    rc, out, err = _run(["export", str(tmp_path / "set" / "rear"), "--out", str(tmp_path / "one"), "--store", "none"])
+    assert rc == 0, err
+    assert f"whole cycle, {len(plan.cycle.legs)} legs" in out
+    back = parse_nc((tmp_path / "one" / f"{plan.plan_id}.nc").read_text())
+    assert [p for p, _, _ in back["phases"]] == [leg.phase for leg in plan.cycle.legs]
+    rows = (tmp_path / "one" / f"{plan.plan_id}.csv").read_text().splitlines()
+    assert len(rows) - 1 == len(back["positions"]) and rows[1].split(",")[-6] == "approach"
+    # the set directory: one program in the set's channel, front first (set.json's order), a tool call each
+    rc, out, err = _run(["export", str(tmp_path / "set"), "--out", str(tmp_path / "two"), "--store", "none"])
+    assert rc == 0, err
+    assert "electrode set: 2 electrode(s) (front, rear) in 1 channel(s)" in out
+    back = parse_nc((tmp_path / "two" / ("5" * 16 + ".nc")).read_text())
+    assert [(t, "ELECTRODE front" in c) for t, _, c in back["tool_changes"]] == [(1, True), (2, False)]
+    assert plan.plan_id in back["tool_changes"][1][2] and front.plan_id in back["tool_changes"][0][2]
+    assert [p for p, _, _ in back["phases"]] == [leg.phase for leg in plan.cycle.legs] * 2
+    assert len(back["trajectories"]) == 2
+    # a plan from the store that belongs to a set: --all-channels names the set to export instead
+    store = tmp_path / "store"
+    s = PlanStore(store)
+    s.put(plan_to_stored(plan))
+    rc, out, err = _run(["export", plan.plan_id, "--all-channels", "--store", str(store)])
+    assert rc == ErrorCode.INVALID_REQUEST and "set-of-test" in err
+    rc, out, err = _run(["export", "nothing-of-that-name", "--store", str(store)])
+    assert rc == ErrorCode.UNKNOWN_ID and "electrode-set directory" in err
+    # a plan without a cycle in a program: refused with the reason
+    s.put(plan_to_stored(replace(plan, plan_id="e" * 16, cycle=None)))
+    s.put_sequence("bare-set", "electrode_set", [("e" * 16, 0)])
+    rc, out, err = _run(["export", "bare-set", "--store", str(store)])
+    assert rc == ErrorCode.INVALID_REQUEST and "no machining cycle" in err
+
+
+def test_export_all_channels_writes_one_program_for_the_whole_blisk(rear, tmp_path):
+    """A set id of the store (one electrode here, for time): every channel, A indexed between them."""
+    g, electrode, plan = rear
+    store = tmp_path / "store"
+    s = PlanStore(store)
+    s.put(plan_to_stored(plan))
+    n = g.blisk.blade_count
+    s.put_sequence("9" * 16, "blisk_program", blisk_program_steps([plan.plan_id], n))
+    s.put_sequence("5" * 16, "electrode_set", [(plan.plan_id, 0)], {"program_id": "9" * 16})
+    rc, out, err = _run(["export", "5" * 16, "--all-channels", "--store", str(store), "--out", str(tmp_path / "nc"),
+                         "--format", "nc"])
+    assert rc == 0, err
+    assert f"blisk program: 1 electrode(s) (rear) in {n} channel(s)" in out
+    text = (tmp_path / "nc" / ("9" * 16 + ".nc")).read_text()
+    assert not (tmp_path / "nc" / ("9" * 16 + ".csv")).exists()
+    back = parse_nc(text)
+    assert back["plan_id"] == "9" * 16 and len(back["tool_changes"]) == 1
+    feeds = [(c, i) for p, c, i in back["phases"] if p == "feed"]
+    assert [c for c, _ in feeds] == list(range(n))
+    assert [c for p, c, _ in back["phases"] if p == INDEX] == list(range(1, n))
+    # each channel's feed starts one pitch further in A (joint A in the NC: degrees, read back in rad)
+    ia = back["axis_names"].index("A")
+    a = back["positions"][[i for _, i in feeds], ia]
+    np.testing.assert_allclose(np.diff(a), g.blisk.pitch, atol=2 * math.radians(0.5e-5))
+    assert back["times"][-1] > n * 30.0

@@ -216,7 +216,7 @@ def bridge(rear, tmp_path_factory):
     short = [s for s in blisk_program_steps([front.plan_id, plan.plan_id], 60) if s[1] < 3]
     store.put_sequence("prog-a", "blisk_program", short, {"blade_count": 60})
     store.put_sequence("prog-all", "blisk_program", blisk_program_steps([front.plan_id], 60), {"blade_count": 60})
-    store.put_sequence("prog-nopitch", "blisk_program", short, {})
+    store.put_sequence("set-elsewhere", "electrode_set", [(plan.plan_id, 5)], {})     # no blade count
     exports = tmp_path_factory.mktemp("cycle_nc")
     ros = InProcessRos()
     ros.add(AxisBridgeNode(context=ros.context, parameter_overrides=[
@@ -345,7 +345,7 @@ def test_execute_an_electrode_set_one_trajectory_per_electrode(bridge):
     assert res.error_code.val == ErrorCode.INVALID_REQUEST and "starts in channel 0" in res.message
     res = execute(bridge, "no-such-sequence", dry_run=True)
     assert res.error_code.val == ErrorCode.UNKNOWN_ID and "neither a plan nor a sequence" in res.message
-    res = execute(bridge, "prog-nopitch", dry_run=True)
+    res = execute(bridge, "set-elsewhere", channel=5, dry_run=True)
     assert res.error_code.val == ErrorCode.INVALID_REQUEST and "blade count" in res.message
     res = execute(bridge, plan.plan_id, electrode=1, dry_run=True)
     assert res.error_code.val == ErrorCode.INVALID_REQUEST and "not a sequence" in res.message

@@ -259,3 +259,64 @@ def program_runs(steps, plans, pitch=None):
         run.channels.append(int(channel))
         run.legs.extend(legs)
     return runs
+
+
+def read_exported_cycle(export_dir, doc):
+    """The MachiningCycle of a plan export directory (plan.json's ``cycle`` section and cycle.csv), or None.
+
+    Parameters
+    ----------
+    export_dir : path
+    doc : dict
+        The directory's plan.json, read.
+
+    Raises
+    ------
+    EdmError
+        FILE_ERROR when cycle.csv is missing, differs from the checksum plan.json records, or does not agree
+        with the legs plan.json lists.
+    """
+    import csv
+    import hashlib
+    import pathlib
+
+    from .cycle import Leg, MachiningCycle, ProcessReach
+
+    section = doc.get("cycle")
+    if not section:
+        return None
+    path = pathlib.Path(export_dir) / "cycle.csv"
+    meta = (doc.get("files") or {}).get("cycle") or {}
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise EdmError(ErrorCode.FILE_ERROR, f"{path}: {exc.strerror or exc} (plan.json has a cycle)") from None
+    if meta.get("sha256") and hashlib.sha256(raw).hexdigest() != meta["sha256"]:
+        raise EdmError(ErrorCode.FILE_ERROR, f"{path}: sha256 differs from the one plan.json records (file replaced "
+                                             f"or damaged)")
+    names = tuple(section["axis_names"])
+    try:
+        rows = list(csv.reader(raw.decode().splitlines()))
+        body = np.array([[float(v) for v in r[2:]] for r in rows[1:]], dtype=np.float64).reshape(-1, len(names))
+    except (ValueError, IndexError, UnicodeDecodeError) as exc:
+        raise EdmError(ErrorCode.FILE_ERROR, f"{path}: malformed: {exc}") from None
+    legs = []
+    for i, leg in enumerate(section["legs"]):
+        a, b = int(leg["first"]), int(leg["last"])
+        if not 0 <= a < b < len(body) or (legs and a != int(section["legs"][i - 1]["last"])):
+            raise EdmError(ErrorCode.FILE_ERROR, f"{path}: leg {i} ({leg.get('phase')}) samples {a}..{b} do not fit "
+                                                 f"the {len(body)} rows or the leg before")
+        clear = leg.get("min_clearance_lower_bound_mm") or {}
+        low = np.array([np.nan if clear.get(s) is None else float(clear[s])
+                        for s in ("suction", "pressure", "hub", "shroud")])
+        legs.append(Leg(leg["phase"], leg["label"], body[a:b + 1].copy(), low))
+    if not legs or int(section["legs"][-1]["last"]) != len(body) - 1:
+        raise EdmError(ErrorCode.FILE_ERROR, f"{path}: {len(body)} rows, plan.json's legs end elsewhere")
+    r = section.get("reach") or {}
+    reach = ProcessReach(rotation_suction=r.get("rotation_suction_rad", 0.0),
+                         rotation_pressure=r.get("rotation_pressure_rad", 0.0),
+                         radial_reduction=r.get("radial_reduction_mm", 0.0),
+                         radial_reach=tuple(r.get("radial_reach_mm", ())), radial_stock=r.get("radial_stock_mm", 0.0),
+                         axes_without_a=r.get("axes_without_a", False))
+    return MachiningCycle(names, legs, reach, float(section.get("margin_mm", np.nan)),
+                          bool(section.get("certified", False)), section.get("message", ""))

@@ -364,7 +364,9 @@ class PlanStore:
         steps : sequence of (plan_id, channel)
             Every plan id must be a channel plan of this store, all of one geometry.
         meta : dict, optional
-            JSON-safe rest (labels, blade count, removal figures, ...).
+            JSON-safe rest (labels, removal figures, ...). A blisk program's ``blade_count`` (N, whose pitch
+            2 pi / N its index turns use) is taken from a complete program's steps when not given, and must be
+            given for a partial one.
 
         Returns
         -------
@@ -388,6 +390,9 @@ class PlanStore:
         if not steps or any(c < 0 for _, c in steps):
             raise EdmError(ErrorCode.INVALID_REQUEST, f"sequence {sequence_id}: needs at least one step, channels "
                                                       f">= 0")
+        meta = dict(meta or {})
+        if kind == "blisk_program":
+            meta["blade_count"] = _program_blade_count(sequence_id, steps, meta.get("blade_count"))
         geometries = set()
         for plan_id in dict.fromkeys(p for p, _ in steps):
             stored = self.get(plan_id)
@@ -402,7 +407,7 @@ class PlanStore:
             raise EdmError(ErrorCode.INVALID_REQUEST, f"sequence {sequence_id}: its plans belong to "
                                                       f"{len(geometries)} geometries")
         seq = StoredSequence(sequence_id=sequence_id, kind=kind, geometry_id=geometries.pop(), steps=steps,
-                             meta=dict(meta or {}),
+                             meta=meta,
                              created=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"))
         head = {"sequence_id": seq.sequence_id, "kind": kind, "geometry_id": seq.geometry_id,
                 "steps": [list(s) for s in steps], "meta": seq.meta, "created": seq.created, "version": seq.version}
@@ -460,6 +465,32 @@ class PlanStore:
         finally:
             con.close()
         return [dict(zip(("sequence_id", "kind", "geometry_id", "created"), r)) for r in rows]
+
+
+def _program_blade_count(sequence_id, steps, given):
+    """The blade count N of a blisk program: as given (every channel below it), or of a complete program.
+
+    A program's index turns are (k - k') 2 pi / N: a wrong N would index to the wrong place, so N is never
+    guessed from a partial program.
+    """
+    channels = [c for _, c in steps]
+    if given is not None:
+        if isinstance(given, bool) or not isinstance(given, int) or given < 1 or max(channels) >= given:
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"blisk program {sequence_id}: blade_count {given!r} must be "
+                                                      f"an integer above every channel (largest {max(channels)})")
+        return given
+    runs, last = [], None
+    for plan_id, c in steps:
+        if plan_id != last:
+            runs.append([])
+            last = plan_id
+        runs[-1].append(c)
+    n = len(runs[0])
+    if any(r != list(range(n)) for r in runs):
+        raise EdmError(ErrorCode.INVALID_REQUEST, f"blisk program {sequence_id}: each electrode must run through "
+                                                  f"channels 0 .. N-1 in order (blisk_program_steps), or the meta must "
+                                                  f"give blade_count")
+    return n
 
 
 @dataclass
