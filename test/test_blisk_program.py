@@ -224,6 +224,11 @@ def test_program_runs_index_at_the_home_point_and_change_tools(rear):
     with pytest.raises(EdmError) as e:
         program_runs([(a.plan_id, 0)], {a.plan_id: replace(a, cycle=None)}, pitch)
     assert e.value.code == ErrorCode.INVALID_REQUEST and "no machining cycle" in e.value.message
+    # nor one whose cycle is not certified (it might overcut): refused with the cycle's reason
+    with pytest.raises(EdmError) as e:
+        program_runs([(a.plan_id, 0)], {a.plan_id: replace(a, cycle=replace(plan.cycle, certified=False,
+                                                                             message="the approach is not certified"))})
+    assert e.value.code == ErrorCode.INFEASIBLE and "the approach is not certified" in e.value.message
     with pytest.raises(EdmError) as e:
         program_runs([(a.plan_id, 1)], {a.plan_id: a})
     assert e.value.code == ErrorCode.INVALID_REQUEST and "blade count" in e.value.message

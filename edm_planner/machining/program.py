@@ -201,12 +201,20 @@ def index_leg(q_from, q_to, axis_names, plan, channel, step=INDEX_STEP):
 
 
 def cycle_legs(plan, channel, pitch):
-    """The legs of a plan's cycle in channel ``channel`` (INVALID_REQUEST when the plan has no cycle)."""
+    """The legs of a plan's cycle in channel ``channel``.
+
+    INVALID_REQUEST when the plan has no cycle, INFEASIBLE when its cycle is not certified (a leg that may
+    come closer to a final surface than the machining margin would overcut it).
+    """
     if plan.cycle is None:
         raise EdmError(ErrorCode.INVALID_REQUEST,
                        f"plan {plan.plan_id} (electrode {plan.electrode_id or '-'}) has no machining cycle: a "
                        f"program runs each electrode's whole cycle (plan the channel's electrode set, "
                        f"`edm-plan plan` without a design, to get one)")
+    if not plan.cycle.certified:
+        raise EdmError(ErrorCode.INFEASIBLE,
+                       f"the machining cycle of plan {plan.plan_id} (electrode {plan.electrode_id or '-'}) is not "
+                       f"certified: {plan.cycle.message or 'no reason recorded'}; it is not sent nor written")
     return [ProgramLeg(leg.phase, leg.label,
                        shift_to_channel(leg.samples, plan.axis_names, plan.channel, channel, pitch), int(channel), plan)
             for leg in plan.cycle.legs]
@@ -231,7 +239,8 @@ def program_runs(steps, plans, pitch=None):
     ------
     EdmError
         UNKNOWN_ID (a step's plan missing), INVALID_REQUEST (a plan without cycle, a four-axis plan in another
-        channel, no pitch where one is needed, axes differing between electrodes).
+        channel, no pitch where one is needed, axes differing between electrodes), INFEASIBLE (a cycle not
+        certified).
     """
     runs = []
     names = None
