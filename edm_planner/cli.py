@@ -330,17 +330,22 @@ def _plan_set(args, geometry, options, store, progress, out):
              f"designed in {result.planning_time:.1f} s; candidates:"]
     for c in result.candidates:
         lines.append(f"  {c.name:<20} {c.status:<11} {c.reason[:160]}")
-    if result.chosen is not None:
-        for p in result.chosen.pieces:
+    if result.delivered is not None:
+        if result.chosen is None:
+            lines.append(f"NOT TO THE TOLERANCE: delivering {result.delivered.name}, the certified candidate that "
+                         f"leaves the least stock; another operation must take what the stock map shows")
+        for p in result.delivered.pieces:
             d, r = p.design, p.cycle.reach
             lines.append(f"  electrode {p.label}: plan {p.plan.plan_id}, h {d.circumferential_reduction:.4f} rad, "
                          f"radial reduction {d.radial_reduction:.3f} mm (radial reach {max(r.radial_reach, default=0):.3f} mm), "
                          f"cycle {len(p.cycle.samples)} samples in {len(p.cycle.legs)} legs")
-        rep = result.chosen.removal
+        rep = result.delivered.removal
         lines.append(f"stock left (exact at wall samples {rep.spacing:.2f} mm apart, tolerance {rep.tolerance:g} mm):")
         for name, s in rep.surfaces.items():
             lines.append(f"  {name:<9} max {s.stock_max:8.4f} mm  mean {s.stock_mean:7.4f} mm  "
-                         f"{100 * s.area_fraction_above_tolerance:6.2f} % of the area above  overcut {s.overcut_max:.4f} mm")
+                         f"{100 * s.area_fraction_above_tolerance:6.2f} % of the area above "
+                         f"({100 * s.area_fraction_beyond_inherent:5.2f} % beyond the corner rounding, up to "
+                         f"{s.inherent_max:.3f} mm)  overcut {s.overcut_max:.4f} mm")
     lines.append(f"written to {path.parent} (set.json, stock.png, one export per electrode)")
     print("\n".join(lines), file=out)
     if result.chosen is None:

@@ -153,11 +153,17 @@ class ElectrodeSet:
     message: str = ""
     set_id: str = ""
     program_id: str = ""
+    closest: Candidate = None
+
+    @property
+    def delivered(self):
+        """The chosen candidate, or (when none machines to the tolerance) the closest certified one."""
+        return self.chosen if self.chosen is not None else self.closest
 
     @property
     def plans(self):
-        """The chosen set's plans in machining order (each with its cycle and the set's proof)."""
-        return [] if self.chosen is None else [p.plan for p in self.chosen.pieces]
+        """The delivered set's plans in machining order (each with its cycle and the set's proof)."""
+        return [] if self.delivered is None else [p.plan for p in self.delivered.pieces]
 
     @property
     def success(self):
@@ -168,6 +174,8 @@ class ElectrodeSet:
                 "geometry_id": self.geometry_id, "channel": self.channel, "success": self.success,
                 "message": self.message, "planning_time_s": round(self.planning_time, 2),
                 "chosen": None if self.chosen is None else self.chosen.name,
+                "delivered": None if self.delivered is None else self.delivered.name,
+                "meets_tolerance": self.chosen is not None,
                 "candidates": [c.to_dict() for c in self.candidates]}
 
 
@@ -374,8 +382,10 @@ class SetDesigner:
     def prove(self, candidate):
         from .removal import simulate_removal
 
+        ideal = self._designed(replace(self.base, split="none"), "main")[0]
         report = simulate_removal(self.blisk, self.sweeps(candidate), self.base.discharge_gap,
-                                  tolerance=self.options.tolerance, spacing=self.options.removal_spacing)
+                                  tolerance=self.options.tolerance, spacing=self.options.removal_spacing,
+                                  reference=[(ideal.mesh.vertices, ideal.mesh.faces, ideal.final_pose[None])])
         candidate.removal = report
         return report
 
@@ -416,15 +426,27 @@ class SetDesigner:
                 if c is not best:
                     c.reason = (f"also machines the channel, but {best.name} has thicker electrodes "
                                 f"({best.volume:.0f} against {c.volume:.0f} mm^3) or a shorter cycle")
-            proof = best.removal.to_dict()
-            for p in best.pieces:
-                _move_plan(p.plan, p.cycle, p.design, channel, self.blisk.pitch)
-                p.plan.removal, p.plan.set_id = proof, result.set_id
             result.chosen = best
             result.message = (f"{best.name}: {best.electrode_count} electrode(s), {best.reason}")
         else:
+            # nothing machines to the tolerance: the certified candidate that leaves the least stock (and
+            # overcuts nowhere) is still delivered, flagged, so the engineer sees what another operation must take
+            near = [c for c in cands if c.status == "stock left"]
+            if near:
+                result.closest = min(near, key=lambda c: (max(w.area_fraction_beyond_inherent
+                                                              for w in c.removal.surfaces.values()),
+                                                          c.electrode_count))
             result.message = "no candidate machines the channel to the tolerance: " + "; ".join(
                 f"{c.name}: {c.status} ({c.reason})" for c in cands)
+            if result.closest is not None:
+                result.message = (f"{result.closest.name} leaves the least stock (not to the tolerance; its plans are "
+                                  f"certified and delivered, flagged); " + result.message)
+        delivered = result.delivered
+        if delivered is not None:
+            proof = delivered.removal.to_dict()
+            for p in delivered.pieces:
+                _move_plan(p.plan, p.cycle, p.design, channel, self.blisk.pitch)
+                p.plan.removal, p.plan.set_id = proof, result.set_id
         result.planning_time = self._elapsed()
         self._report(1.0, result.message)
         return result
@@ -489,15 +511,15 @@ class SetDesigner:
         self._report((index + 0.95) / count, f"{cand.name}: material-removal proof")
         report = self.prove(cand)
         figures = removal_figures(report)
-        worst = max(report.surfaces.values(), key=lambda w: w.area_fraction_above_tolerance)
+        worst = max(report.surfaces.values(), key=lambda w: w.area_fraction_beyond_inherent)
         if report.overcut_max > self.options.tolerance:
             cand.status = "overcut"
             cand.reason = f"overcut {report.overcut_max:.4f} mm, beyond the tolerance; {figures}"
-        elif worst.area_fraction_above_tolerance > self.options.max_area_above:
+        elif worst.area_fraction_beyond_inherent > self.options.max_area_above:
             cand.status = "stock left"
-            cand.reason = (f"{100 * worst.area_fraction_above_tolerance:.2f} % of the {worst.surface} keeps stock "
-                           f"above {self.options.tolerance:g} mm (at most {100 * self.options.max_area_above:g} % "
-                           f"allowed); {figures}")
+            cand.reason = (f"{100 * worst.area_fraction_beyond_inherent:.2f} % of the {worst.surface} keeps stock "
+                           f"more than {self.options.tolerance:g} mm beyond the EDM corner rounding (at most "
+                           f"{100 * self.options.max_area_above:g} % allowed); {figures}")
         else:
             cand.status = "accepted"
             cand.reason = f"machines the channel to {self.options.tolerance:g} mm; {figures}"
@@ -529,7 +551,9 @@ def _size_in_worker(piece, remaining):
 def removal_figures(report):
     """One line of the proof's figures: per surface largest / mean stock, share above tolerance, overcut."""
     return "; ".join(f"{name} stock max {s.stock_max:.3f} mean {s.stock_mean:.4f} mm, "
-                     f"{100 * s.area_fraction_above_tolerance:.2f} % above, overcut {s.overcut_max:.4f} mm"
+                     f"{100 * s.area_fraction_above_tolerance:.2f} % above the tolerance "
+                     f"({100 * s.area_fraction_beyond_inherent:.2f} % beyond the corner rounding of "
+                     f"{s.inherent_max:.3f} mm), overcut {s.overcut_max:.4f} mm"
                      for name, s in report.surfaces.items())
 
 
@@ -579,7 +603,7 @@ def write_set(result, out_dir, blisk, store=None):
     doc = json_safe(result.to_dict())
     doc["format"] = "edm_planner.electrode_set/1"
     doc["units"] = {"length": "mm", "angle": "rad", "time": "s"}
-    chosen = result.chosen
+    chosen = result.delivered
     if chosen is not None:
         doc["electrodes"] = []
         for order, piece in enumerate(chosen.pieces):
@@ -592,11 +616,40 @@ def write_set(result, out_dir, blisk, store=None):
     # the chosen set's stock, or the closest candidate's: where the stock stays is what an engineer asks next
     proven = [c for c in result.candidates if c.removal is not None]
     shown = chosen if chosen is not None else min(
-        proven, key=lambda c: max(w.area_fraction_above_tolerance for w in c.removal.surfaces.values()),
+        proven, key=lambda c: max(w.area_fraction_beyond_inherent for w in c.removal.surfaces.values()),
         default=None)
     if shown is not None and shown.removal is not None:
         plot_stock_maps(shown.removal, out / "stock.png")
         doc["stock_map"] = {"file": "stock.png", "candidate": shown.name}
+    path = out / "set.json"
+    try:
+        path.write_text(json.dumps(doc, indent=1, allow_nan=False))
+    except OSError as exc:
+        raise EdmError(ErrorCode.FILE_ERROR, f"cannot write {path}: {exc}") from exc
+    return path
+
+
+def write_stored_set(plans, labels, meta, out_dir, blisk):
+    """Write a set kept in the plan store: its plan exports and set.json (``meta``, as stored).
+
+    The stock map needs the proof's arrays, which the store does not keep: an
+    existing ``stock.png`` of the same set (same directory) is left in place.
+    """
+    import json
+    import pathlib
+
+    from ..planning.export import json_safe, write_plan
+
+    out = pathlib.Path(out_dir)
+    doc = dict(json_safe(meta), format="edm_planner.electrode_set/1",
+               units={"length": "mm", "angle": "rad", "time": "s"})
+    doc["electrodes"] = []
+    for order, (plan, label) in enumerate(zip(plans, labels)):
+        path = write_plan(plan, out / label, blisk)
+        doc["electrodes"].append({"order": order, "label": label, "plan_id": plan.plan_id,
+                                  "export": str(path.parent.relative_to(out))})
+    if (out / "stock.png").exists():
+        doc["stock_map"] = {"file": "stock.png", "candidate": meta.get("delivered")}
     path = out / "set.json"
     try:
         path.write_text(json.dumps(doc, indent=1, allow_nan=False))

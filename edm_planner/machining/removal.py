@@ -567,6 +567,12 @@ class SurfaceStock:
         Largest and area-weighted mean stock [mm].
     area_fraction_above_tolerance : float
         Area fraction with stock > tolerance.
+    inherent_max, area_fraction_beyond_inherent : float
+        With a ``reference`` in :func:`simulate_removal` (the ideal electrode: the
+        channel shrunk by the gap, at its machining pose): the largest stock it
+        leaves too (the EDM corner rounding, radius = gap, which no electrode can
+        avoid in a concave corner), and the area fraction whose stock exceeds
+        that inherent stock by more than the tolerance; NaN without.
     overcut_max : float
         max(0, -min stock) [mm].
     """
@@ -581,6 +587,8 @@ class SurfaceStock:
     stock_mean: float
     area_fraction_above_tolerance: float
     overcut_max: float
+    inherent_max: float = float("nan")
+    area_fraction_beyond_inherent: float = float("nan")
 
     def to_dict(self):
         return {
@@ -588,6 +596,9 @@ class SurfaceStock:
             "stock_max_mm": _mm(self.stock_max),
             "stock_mean_mm": _mm(self.stock_mean),
             "area_fraction_above_tolerance": round(self.area_fraction_above_tolerance, 5),
+            "inherent_stock_max_mm": None if np.isnan(self.inherent_max) else _mm(self.inherent_max),
+            "area_fraction_beyond_inherent": (None if np.isnan(self.area_fraction_beyond_inherent)
+                                              else round(self.area_fraction_beyond_inherent, 5)),
             "overcut_max_mm": _mm(self.overcut_max),
         }
 
@@ -670,7 +681,8 @@ class RemovalReport:
         }
 
 
-def simulate_removal(blisk, sweeps, gap, tolerance=REMOVAL.stock, spacing=REMOVAL.spacing, samples=None):
+def simulate_removal(blisk, sweeps, gap, tolerance=REMOVAL.stock, spacing=REMOVAL.spacing, samples=None,
+                     reference=None):
     """Stock left on the four surfaces of channel 0 after the given electrode sweeps.
 
     Parameters
@@ -686,6 +698,10 @@ def simulate_removal(blisk, sweeps, gap, tolerance=REMOVAL.stock, spacing=REMOVA
         Wall sample spacing [mm] (ignored with ``samples``).
     samples : dict, optional
         :func:`wall_samples` output to reuse.
+    reference : sequence of sweeps, optional
+        The ideal electrode (the whole channel shrunk by the gap at its machining
+        pose): its stock is the inherent one (concave corners keep a fillet of
+        radius ``gap`` whatever the electrodes), reported beside the stock.
 
     Returns
     -------
@@ -699,6 +715,10 @@ def simulate_removal(blisk, sweeps, gap, tolerance=REMOVAL.stock, spacing=REMOVA
     points = np.vstack([samples[s].points[m] for s, m in zip(names, valid)])
     stats = {}
     stock, which = stock_at_points(points, sweeps, gap, stats=stats)
+    inherent = None
+    if reference is not None:
+        ref = [Sweep(np.asarray(v, dtype=np.float64), np.asarray(f), _poses(p)) for v, f, p in reference]
+        inherent = np.maximum(stock_at_points(points, ref, gap if np.ndim(gap) == 0 else gap[0])[0], 0.0)
     centre = points.mean(axis=0)
     radius = float(np.linalg.norm(points - centre, axis=1).max())
     step = max((float(_step_travel(*_inverse(sw.poses), centre, radius).max(initial=0.0)) for sw in sweeps),
@@ -713,6 +733,7 @@ def simulate_removal(blisk, sweeps, gap, tolerance=REMOVAL.stock, spacing=REMOVA
         full[m] = stock[offset:offset + k]
         w_full = np.full((len(m), 2), -1, dtype=np.int64)
         w_full[m] = which[offset:offset + k]
+        inh = None if inherent is None else inherent[offset:offset + k]
         offset += k
         s, w = full[m], smp.weights[m]
         area = float(w.sum())
@@ -721,7 +742,10 @@ def simulate_removal(blisk, sweeps, gap, tolerance=REMOVAL.stock, spacing=REMOVA
             which=w_full.reshape(*smp.shape, 2), area=area,
             stock_max=float(s.max()), stock_mean=float((s * w).sum() / area),
             area_fraction_above_tolerance=float(w[s > tolerance].sum() / area),
-            overcut_max=float(max(0.0, -s.min())))
+            overcut_max=float(max(0.0, -s.min())),
+            inherent_max=float("nan") if inh is None else float(inh.max()),
+            area_fraction_beyond_inherent=(float("nan") if inh is None
+                                           else float(w[s - inh > tolerance].sum() / area)))
         ok &= bool(s.max() <= tolerance and -s.min() <= tolerance)
     reach = max(smp.spacing for smp in samples.values())
     pose_count = sum(len(sw.poses) for sw in sweeps)

@@ -363,7 +363,7 @@ class TrajectoryPlannerNode(Node):
 
     def _plan_set(self, request, response):
         from ..machining.cycle import CycleOptions
-        from ..machining.electrode_set import SetDesigner, set_id_for, write_set
+        from ..machining.electrode_set import SetDesigner, set_id_for, write_set, write_stored_set
         from ..machining.program import blisk_program_steps
 
         prepared = self._geometry(request.geometry_id, parsed_only=True)
@@ -396,17 +396,19 @@ class TrajectoryPlannerNode(Node):
                                    progress=progress, field_cache=(cache, gid))
             result = designer.design(int(request.channel))
             meta = result.to_dict()
-            meta["labels"] = [p.label for p in result.chosen.pieces] if result.chosen else []
+            meta["labels"] = [p.label for p in result.delivered.pieces] if result.delivered else []
             message, candidates, planning_time = result.message, meta["candidates"], result.planning_time
             plans = result.plans
-            if result.success:
+            if plans:
                 message += self._keep_set(result, blisk_program_steps(
                     [p.plan_id for p in plans], prepared.blisk.blade_count), meta)
         response.set_id, response.program_id = set_id, program_id
         response.candidates = [candidate_msg(c) for c in candidates]
         response.planning_time = float(planning_time)
-        response.success = bool(plans)
-        response.error_code = error_code(ErrorCode.SUCCESS if plans else ErrorCode.INFEASIBLE)
+        # success only for a set that machines the channel to the tolerance; the closest certified set is
+        # still delivered (plan ids, store, topic) with INFEASIBLE and the stock named in the message
+        response.success = bool(plans) and bool(meta.get("meets_tolerance"))
+        response.error_code = error_code(ErrorCode.SUCCESS if response.success else ErrorCode.INFEASIBLE)
         response.message = message
         if not plans:
             self.get_logger().warning(f"electrode set {set_id}: {message}")
@@ -416,10 +418,15 @@ class TrajectoryPlannerNode(Node):
         response.plan_ids = [p.plan_id for p in plans]
         response.electrode_labels = list(labels)
         response.metrics = [metrics_to_msg(p.metrics, p.cycle, p.removal) for p in plans]
-        if request.write_export and designer is not None:
+        if request.write_export:
             root = self.get_parameter("export_dir").value or os.path.join(
                 os.path.expanduser("~"), ".local", "share", "edm_planner", "plans")
-            response.export_path = str(write_set(result, os.path.join(root, set_id), prepared.blisk).parent)
+            path = os.path.join(root, set_id)
+            if designer is not None:
+                write_set(result, path, prepared.blisk)
+            else:
+                write_stored_set(plans, labels, meta, path, prepared.blisk)
+            response.export_path = path
         for plan, metrics in zip(plans, response.metrics):
             self.plan_pub.publish(channel_plan_msg(plan_to_stored(plan), pose_array_msg(plan.poses, frame),
                                                    axis_path_msg(plan.axis_names, plan.samples), metrics))
