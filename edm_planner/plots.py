@@ -17,12 +17,20 @@ _UNIT = {"X": "mm", "Y": "mm", "Z": "mm", "A": "rad", "B": "rad", "C": "rad"}
 _COLOURS = {"suction": "tab:blue", "pressure": "tab:orange", "hub": "tab:green", "shroud": "tab:red"}
 
 
-def axis_curves(x, values, axis_names, path, xlabel, title):
-    """One panel per axis: ``values`` (n, k) against ``x`` (n,); written to ``path`` (PNG)."""
+def axis_curves(x, values, axis_names, path, xlabel, title, marks=()):
+    """One panel per axis: ``values`` (n, k) against ``x`` (n,); written to ``path`` (PNG).
+
+    ``marks``: (label, x) pairs drawn as labelled vertical lines (the phases of a cycle).
+    """
     values = np.asarray(values)
     fig, axes = plt.subplots(len(axis_names), 1, figsize=(8, 1.8 * len(axis_names)), sharex=True)
-    for ax, name, col in zip(np.atleast_1d(axes), axis_names, values.T):
+    for k, (ax, name, col) in enumerate(zip(np.atleast_1d(axes), axis_names, values.T)):
         ax.plot(x, col, lw=1.2)
+        for label, at in marks:
+            ax.axvline(at, color="0.5", lw=0.7, ls=":")
+            if k == 0:
+                ax.annotate(label, (at, 1.0), xycoords=("data", "axes fraction"), fontsize=7, rotation=90,
+                            va="bottom", ha="right")
         ax.set_ylabel(f"{name} [{_UNIT.get(name, '')}]")
         ax.grid(alpha=0.3)
     np.atleast_1d(axes)[-1].set_xlabel(xlabel)

@@ -1,5 +1,6 @@
 """make demo's flow end to end: four node processes, the cell controller over DDS, the files it writes."""
 
+import json
 import os
 import subprocess
 import sys
@@ -35,17 +36,23 @@ def test_demo_runs_end_to_end_and_writes_its_pictures(tmp_path):
     env.pop("EDM_PLANNER_PLAN_STORE", None)
     out = tmp_path / "demo"
     run = subprocess.run([sys.executable, "-m", "edm_planner.nodes.demo", "--out", str(out)], env=env,
-                         capture_output=True, text=True, timeout=900)
+                         capture_output=True, text=True, timeout=3600)
     assert run.returncode == 0, run.stdout + run.stderr
     text = run.stdout
-    for word in ("LoadGeometry", "PlanChannel", "ExecutePlan", "Summary", "min clearance", "all nodes stopped"):
+    for word in ("LoadGeometry", "PlanElectrodeSet", "ExecutePlan", "CheckInterference", "Summary",
+                 "min clearance", "stock left", "all nodes stopped"):
         assert word in text
-    for name in ("axes_vs_time.png", "axes_vs_index.png", "clearance.png", "channel.png", "channel.glb"):
+    for name in ("axes_vs_time.png", "axes_vs_index.png", "clearance.png", "channel.png", "channel.glb",
+                 "stock.png"):
         assert (out / name).stat().st_size > 10_000, name
-    plans = list((out / "plans").iterdir())
-    assert len(plans) == 1
-    exported = read_plan(plans[0])
-    assert exported.channel == 0 and len(exported.axes) > 100
+    (set_dir,) = list((out / "plans").iterdir())               # the set export, named by the set id
+    doc = json.loads((set_dir / "set.json").read_text())
+    assert len(doc["electrodes"]) >= 2                          # the primitive electrode cannot leave
+    for e in doc["electrodes"]:
+        exported = read_plan(set_dir / e["export"])
+        assert exported.channel == 0 and len(exported.axes) > 100
+        assert (set_dir / e["export"] / "cycle.csv").exists()
+    assert text.count("] ExecutePlan:") == len(doc["electrodes"])
     # no node process outlives the demo
     assert processes_of(env["HOME"]) == []
 
@@ -67,9 +74,9 @@ def test_demo_interrupted_stops_every_node_and_exits_non_zero(tmp_path):
     deadline = time.monotonic() + 300
     for line in proc.stdout:                      # wait until the cell controller has asked for the plan
         lines.append(line)
-        if "] PlanChannel:" in line or time.monotonic() > deadline:
+        if "] PlanElectrodeSet:" in line or time.monotonic() > deadline:
             break
-    assert any("] PlanChannel:" in x for x in lines), "".join(lines)
+    assert any("] PlanElectrodeSet:" in x for x in lines), "".join(lines)
     running = processes_of(env["HOME"])
     assert len(running) >= 5, running                # the demo and its four nodes
     proc.send_signal(signal.SIGINT)

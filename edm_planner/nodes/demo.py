@@ -1,18 +1,21 @@
 """``make demo``: the whole product once, as a cell controller drives it over DDS.
 
 Starts the four nodes as separate processes (launch-free bring-up), then
-LoadGeometry (the built-in default blisk) -> PlanChannel (channel 0) ->
-ExecutePlan, with a monitor subscriber receiving the JointTrajectory; asks
-the interference_checker for the clearances along the published path;
+LoadGeometry (the built-in default blisk) -> PlanElectrodeSet (channel 0) ->
+ExecutePlan per electrode, with a monitor subscriber receiving the
+JointTrajectory; asks the interference_checker for the clearances along
+every electrode's whole cycle;
 prints a summary and writes ``out/demo/``: the plan export, axis curves
 against time and against the sample index (Huang Fig. 7), the clearance per
 surface along the path, and the electrode's swept positions in the channel
 (GLB and PNG). Every process it started is stopped, also on Ctrl-C or
 failure; the exit status is non-zero if any step failed.
 
-The default blisk's primitive electrode cannot leave its 104-degree channel
-(the planner says so); the demo plans the rear electrode of a front/rear
-split (h = 0.03 rad, radial reduction 3 mm), which exits downstream.
+The default blisk's file names no electrode design: PlanElectrodeSet
+designs the set (its primitive electrode cannot leave the 104-degree
+channel), each electrode's whole cycle is executed in turn, and the
+removal proof's stock map is copied next to the other pictures. A repeated
+run finds the set in the plan store.
 """
 
 import argparse
@@ -112,10 +115,35 @@ def _require(response, what):
     return response
 
 
-def run(out_dir, channel, bringup, timeout=600.0):
-    import rclpy
+def _design_msg(d):
+    """An ElectrodeDesign message of a design dict (set.json): the CheckInterference override of one electrode."""
     from edm_planner_msgs.msg import ElectrodeDesign
-    from edm_planner_msgs.srv import CheckInterference, ExecutePlan, LoadGeometry, PlanChannel
+
+    nan = float("nan")
+    rng = d.get("axial_range") or [nan, nan]
+    return ElectrodeDesign(discharge_gap=float(d["discharge_gap"]),
+                           circumferential_reduction=float(d["circumferential_reduction"]),
+                           reduction_side=d["reduction_side"], radial_reduction=float(d["radial_reduction"]),
+                           axial_start=float(rng[0]), axial_end=float(rng[1]), split=d["split"],
+                           split_fraction=float(d["split_fraction"]), split_overlap=float(d["split_overlap"]))
+
+
+def _cycle_csv(path):
+    """(axis names, (n, k) axis values, phases) of an export's cycle.csv."""
+    import csv
+
+    with open(path) as f:
+        rows = list(csv.reader(f))
+    names = [h.split("_")[0] for h in rows[0][2:]]
+    return names, np.array([[float(v) for v in r[2:]] for r in rows[1:]]), [r[0] for r in rows[1:]]
+
+
+def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0):
+    import json
+
+    import rclpy
+    from edm_planner_msgs.msg import AxisPoint
+    from edm_planner_msgs.srv import CheckInterference, ExecutePlan, LoadGeometry, PlanElectrodeSet
     from rclpy.executors import SingleThreadedExecutor
     from trajectory_msgs.msg import JointTrajectory
 
@@ -131,8 +159,7 @@ def run(out_dir, channel, bringup, timeout=600.0):
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("edm_demo_cell_controller")
     received = []
-    got = threading.Event()
-    node.create_subscription(JointTrajectory, TRAJECTORY_TOPIC, lambda m: (received.append(m), got.set()), 10)
+    node.create_subscription(JointTrajectory, TRAJECTORY_TOPIC, received.append, 10)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     spinner = threading.Thread(target=executor.spin, daemon=True)
@@ -144,60 +171,100 @@ def run(out_dir, channel, bringup, timeout=600.0):
                            "LoadGeometry")
             s = geo.summary
             print(f"    {s.name or 'default blisk'}: {s.blade_count} blades, id {geo.geometry_id[:12]}, "
-                  f"min channel width {s.min_channel_width:.3f} mm")
-        with Step(f"PlanChannel: channel {channel}, rear electrode of a front/rear split"):
-            nan = float("nan")
-            design = ElectrodeDesign(discharge_gap=nan, circumferential_reduction=0.03, reduction_side="",
-                                     radial_reduction=3.0, axial_start=nan, axial_end=nan, split="front_rear",
-                                     split_fraction=nan, split_overlap=1.0)
-            req = PlanChannel.Request(geometry_id=geo.geometry_id, channel=channel, electrode_id="rear",
-                                      electrode=design, write_export=True)
-            plan = _require(_call(node, PlanChannel, "plan_channel", req, timeout, bringup), "PlanChannel")
-            m = plan.metrics
-            print(f"    plan {plan.plan_id}: {plan.message}")
-        with Step("ExecutePlan: time the path and send the JointTrajectory"):
-            ex = _require(_call(node, ExecutePlan, "execute_plan",
-                                ExecutePlan.Request(plan_id=plan.plan_id, channel=channel, dry_run=False),
-                                timeout, bringup), "ExecutePlan")
-            if not got.wait(30.0):
-                raise RuntimeError(f"no JointTrajectory received on {TRAJECTORY_TOPIC}")
-            traj = received[-1]
-            print(f"    {ex.point_count} points, {ex.duration:.2f} s; monitor received "
-                  f"{len(traj.points)} points for joints {list(traj.joint_names)}")
-        with Step("CheckInterference: clearances along the published path (fast method)"):
-            chk = CheckInterference.Request(geometry_id=geo.geometry_id, channel=channel, electrode_id="rear",
-                                            electrode=design, method=CheckInterference.Request.METHOD_FAST)
-            chk.poses = list(plan.poses.poses)
-            clear_res = _require(_call(node, CheckInterference, "check_interference", chk, timeout, bringup),
-                                 "CheckInterference")
-            clear = np.array([[c.suction, c.pressure, c.hub, c.shroud] for c in clear_res.clearances])
-            print(f"    {clear_res.message}; smallest {clear.min():.4f} mm (field error bound "
-                  f"{clear_res.error_bound * 1e3:.1f} um)")
+                  f"min channel width {s.min_channel_width:.3f} mm; no electrode design in the file")
+        with Step(f"PlanElectrodeSet: channel {channel}, the planner designs the electrode set"):
+            res = _call(node, PlanElectrodeSet, "plan_electrode_set",
+                        PlanElectrodeSet.Request(geometry_id=geo.geometry_id, channel=channel, write_export=True),
+                        set_timeout, bringup)
+            if not res.plan_ids:
+                _require(res, "PlanElectrodeSet")
+            for c in res.candidates:
+                print(f"    candidate {c.name:<19} {c.status:<11} {c.reason[:110]}")
+            if not res.success:
+                print(f"    NOT TO THE TOLERANCE: {res.message[:300]}")
+            print(f"    set {res.set_id}: {len(res.plan_ids)} electrode(s) {list(res.electrode_labels)}, "
+                  f"designed in {res.planning_time:.1f} s")
+        set_doc = json.loads((pathlib.Path(res.export_path) / "set.json").read_text())
+        delivered = next(c for c in set_doc["candidates"] if c["name"] == set_doc["delivered"])
+        designs = {p["label"]: p for p in delivered["pieces"]}
+        trajectories = []
+        for i, label in enumerate(res.electrode_labels):
+            with Step(f"ExecutePlan: set {res.set_id}, electrode {i} ({label}): its whole cycle"):
+                before = len(received)
+                ex = _require(_call(node, ExecutePlan, "execute_plan",
+                                    ExecutePlan.Request(plan_id=res.set_id, channel=channel, dry_run=False,
+                                                        electrode=i), timeout, bringup), "ExecutePlan")
+                deadline = time.monotonic() + 30.0
+                while len(received) == before:
+                    if time.monotonic() > deadline:
+                        raise RuntimeError(f"no JointTrajectory received on {TRAJECTORY_TOPIC}")
+                    time.sleep(0.05)
+                trajectories.append((label, ex, received[-1]))
+                phases = ", ".join(f"{n} {t:.1f} s" for n, t in zip(ex.phase_names, ex.phase_start_times))
+                print(f"    {ex.point_count} points, {ex.duration:.1f} s; phases from: {phases}")
+                if ex.next_electrode:
+                    print(f"    then change the tool: {ex.next_electrode}")
+        clearances = {}
+        for label, plan_id in zip(res.electrode_labels, res.plan_ids):
+            with Step(f"CheckInterference: the {label} electrode along its whole cycle (fast method)"):
+                names, q, _ = _cycle_csv(pathlib.Path(res.export_path) / label / "cycle.csv")
+                req = CheckInterference.Request(geometry_id=geo.geometry_id, channel=channel,
+                                                electrode_id=designs[label]["electrode_id"],
+                                                electrode=_design_msg(designs[label]["design"]),
+                                                method=CheckInterference.Request.METHOD_FAST, axis_names=names)
+                req.axis_values = [AxisPoint(positions=row) for row in q.tolist()]
+                chk = _require(_call(node, CheckInterference, "check_interference", req, timeout, bringup),
+                               "CheckInterference")
+                clearances[label] = np.array([[c.suction, c.pressure, c.hub, c.shroud] for c in chk.clearances])
+                print(f"    {len(q)} samples; smallest {clearances[label].min():.4f} mm (fast value, error bound "
+                      f"{chk.error_bound * 1e3:.1f} um)")
         with Step(f"plots and 3D view in {out_dir}"):
-            export = read_plan(plan.export_path)
+            import shutil
+
+            label0, ex0, traj = trajectories[0]
             t = np.array([p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in traj.points])
-            q = np.array([p.positions for p in traj.points])
-            plots.axis_curves(t, q, list(traj.joint_names), out_dir / "axes_vs_time.png", "time [s]",
-                              f"Axis motion as sent to the controller ({ex.duration:.1f} s)")
-            samples = np.array([p.positions for p in plan.axis_path.points])
-            plots.axis_curves(np.arange(len(samples)), samples, list(plan.axis_path.axis_names),
-                              out_dir / "axes_vs_index.png", "sample index (feed order)",
-                              "Axis values along the certified path (cf. Huang Fig. 7)")
+            qt = np.array([p.positions for p in traj.points])
+            plots.axis_curves(t, qt, list(traj.joint_names), out_dir / "axes_vs_time.png", "time [s]",
+                              f"The {label0} electrode's cycle as sent to the controller ({ex0.duration:.1f} s)",
+                              marks=list(zip(ex0.phase_names, ex0.phase_start_times)))
+            names, q, phase = _cycle_csv(pathlib.Path(res.export_path) / label0 / "cycle.csv")
+            plots.axis_curves(np.arange(len(q)), q, names, out_dir / "axes_vs_index.png", "sample index",
+                              f"Axis values along the {label0} electrode's certified cycle (cf. Huang Fig. 7)",
+                              marks=[(p, i) for i, p in enumerate(phase) if i == 0 or phase[i - 1] != p])
+            margin = float(set_doc["candidates"][0]["pieces"][0]["design"]["discharge_gap"]) - 0.02
+            allc = np.vstack(list(clearances.values()))
+            plots.clearance_plot(np.arange(len(allc)), allc, [margin] * 4, out_dir / "clearance.png",
+                                 xlabel="cycle sample (" + ", then ".join(clearances) + ")")
             g = load_geometry(share / "default_blisk.yaml")
-            margins = [0.02, 0.02, 0.02, 0.02]
-            plots.clearance_plot(np.arange(len(clear)), clear, margins, out_dir / "clearance.png")
+            stock_png = pathlib.Path(res.export_path) / "stock.png"
+            if stock_png.exists():
+                shutil.copyfile(stock_png, out_dir / "stock.png")
+            export = read_plan(pathlib.Path(res.export_path) / label0)
             plots.channel_view(g.blisk.channel_meshes(channel, resolution=1.0), export.electrode_mesh,
                                export.poses, out_dir / "channel.glb", out_dir / "channel.png")
+        m = res.metrics
         print("\nSummary")
-        print(f"  geometry     default blisk, id {geo.geometry_id[:12]}, channel {channel}")
-        print(f"  method       default (LP), {m.node_count} nodes, {len(samples)} samples, path "
-              f"{m.path_length:.1f} mm, certified {m.certified}")
-        print("  min clearance [mm]  " + ", ".join(
-            f"{n} {v:.4f}" for n, v in zip(("suction", "pressure", "hub", "shroud"),
-                                           (m.min_clearance_suction, m.min_clearance_pressure,
-                                            m.min_clearance_hub, m.min_clearance_shroud))))
-        print(f"  plan time    {m.planning_time:.2f} s; trajectory {ex.duration:.2f} s, {ex.point_count} points")
-        print(f"  written      {plan.export_path} (plan export), {out_dir}/*.png, {out_dir}/channel.glb")
+        print(f"  geometry     default blisk, id {geo.geometry_id[:12]}, channel {channel}, no design given")
+        print(f"  set          {set_doc['delivered']}: {', '.join(res.electrode_labels)} "
+              f"({'machines the channel to the tolerance' if res.success else 'NOT to the tolerance'}), "
+              f"designed in {res.planning_time:.1f} s, set {res.set_id}, whole-blisk program {res.program_id}")
+        for label, metrics in zip(res.electrode_labels, m):
+            print(f"  {label:<12} min clearance [mm] (certified lower bound) " + ", ".join(
+                f"{n} {v:.4f}" for n, v in zip(("suction", "pressure", "hub", "shroud"),
+                                               (metrics.min_clearance_suction, metrics.min_clearance_pressure,
+                                                metrics.min_clearance_hub, metrics.min_clearance_shroud))))
+        removal = delivered.get("removal", {})
+        print(f"  stock left   exact at wall samples {removal.get('accuracy', {}).get('sample_spacing_mm')} mm "
+              f"apart, tolerance {removal.get('tolerance_mm')} mm:")
+        for name, f in removal.get("surfaces", {}).items():
+            print(f"    {name:<9} max {f['stock_max_mm']:.4f} mm, mean {f['stock_mean_mm']:.4f} mm, "
+                  f"{100 * f['area_fraction_above_tolerance']:.2f} % of the area above "
+                  f"({100 * (f['area_fraction_beyond_inherent'] or 0):.2f} % beyond the corner rounding), "
+                  f"overcut {f['overcut_max_mm']:.4f} mm")
+        for label, ex, _ in trajectories:
+            print(f"  {label:<12} cycle {ex.duration:.1f} s, {ex.point_count} points")
+        print(f"  written      {res.export_path} (set.json, stock.png, one export per electrode), "
+              f"{out_dir}/*.png, {out_dir}/channel.glb")
     finally:
         executor.shutdown()
         node.destroy_node()
