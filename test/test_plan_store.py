@@ -183,6 +183,7 @@ def _wait_for_service(ros, client, srv_type, name, timeout=90.0):
         client.destroy_client(c)
 
 
+@pytest.mark.slow
 def test_plans_survive_restarts_of_the_planner_and_the_bridge(ros, node_processes, tmp_path, field_cache):
     store = tmp_path / "store"
     node_processes.start("geometry_loader")
@@ -227,6 +228,7 @@ def test_plans_survive_restarts_of_the_planner_and_the_bridge(ros, node_processe
     assert elapsed < 5.0, f"stored plan answered after {elapsed:.1f} s\n{log}"
 
 
+@pytest.mark.slow
 def test_nodes_with_a_foreign_store_keep_working_and_say_why_plans_are_not_kept(ros, tmp_path, field_cache):
     from rclpy.parameter import Parameter
 
