@@ -574,6 +574,10 @@ def _store(args, out):
     for r in rows:
         print(f"{r['plan_id']}  {r['kind']:<8} geometry {r['geometry_id'][:12]}  channel {r['channel']:3d}  "
               f"electrode {r['electrode_id'] or '-':<8} {r['method']:<18} {r['created']}", file=out)
+    seqs = store.list_sequences()
+    print(f"{len(seqs)} sequence(s) (electrode sets, whole-blisk programs; `edm-plan export ID`)", file=out)
+    for r in seqs:
+        print(f"{r['sequence_id']}  {r['kind']:<14} geometry {r['geometry_id'][:12]}  {r['created']}", file=out)
     return 0
 
 

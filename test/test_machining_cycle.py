@@ -211,6 +211,11 @@ def test_write_set_of_a_one_piece_result(rear, tmp_path):
     assert doc["electrodes"][0]["plan_id"] == plan.plan_id
     assert doc["candidates"][0]["removal"]["surfaces"]["suction"]["overcut_max_mm"] <= TOLERANCE
     assert (tmp_path / "stock.png").exists() and doc["stock_map"]["candidate"] == "rear only"
+    import trimesh
+    scene = trimesh.load(tmp_path / "stock.glb")
+    assert len(scene.geometry) == 4
+    colours = np.vstack([g.visual.vertex_colors for g in scene.geometry.values()])
+    assert len(np.unique(colours[:, :3], axis=0)) > 10          # the stock coloured, not one flat colour
     pj = json.loads((tmp_path / "rear" / "plan.json").read_text())
     assert [p["phase"] for p in pj["cycle"]["phases"]] == list(PHASES)
     rows = (tmp_path / "rear" / "cycle.csv").read_text().splitlines()

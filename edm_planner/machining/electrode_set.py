@@ -620,7 +620,8 @@ def write_set(result, out_dir, blisk, store=None):
         default=None)
     if shown is not None and shown.removal is not None:
         plot_stock_maps(shown.removal, out / "stock.png")
-        doc["stock_map"] = {"file": "stock.png", "candidate": shown.name}
+        write_stock_glb(shown.removal, blisk, result.channel, out / "stock.glb")
+        doc["stock_map"] = {"file": "stock.png", "glb": "stock.glb", "candidate": shown.name}
     path = out / "set.json"
     try:
         path.write_text(json.dumps(doc, indent=1, allow_nan=False))
@@ -655,4 +656,21 @@ def write_stored_set(plans, labels, meta, out_dir, blisk):
         path.write_text(json.dumps(doc, indent=1, allow_nan=False))
     except OSError as exc:
         raise EdmError(ErrorCode.FILE_ERROR, f"cannot write {path}: {exc}") from exc
+    return path
+
+
+def write_stock_glb(report, blisk, channel, path, resolution=0.25):
+    """The channel's four surfaces coloured by the stock left (the stock maps' colours), as GLB."""
+    import trimesh
+
+    from .removal import stock_vertex_colours
+
+    scene = trimesh.Scene()
+    transform = blisk.channel_transform(channel)
+    for name, mesh in blisk.channel_meshes(channel, resolution).items():
+        m = mesh.copy()
+        m.visual = trimesh.visual.ColorVisuals(m, vertex_colors=stock_vertex_colours(m, report, name,
+                                                                                     transform=transform))
+        scene.add_geometry(m, node_name=f"{name} (stock)")
+    scene.export(path)
     return path

@@ -237,8 +237,9 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0):
                                  xlabel="cycle sample (" + ", then ".join(clearances) + ")")
             g = load_geometry(share / "default_blisk.yaml")
             stock_png = pathlib.Path(res.export_path) / "stock.png"
-            if stock_png.exists():
-                shutil.copyfile(stock_png, out_dir / "stock.png")
+            for name in ("stock.png", "stock.glb"):           # the removal proof's pictures
+                if (stock_png.parent / name).exists():
+                    shutil.copyfile(stock_png.parent / name, out_dir / name)
             export = read_plan(pathlib.Path(res.export_path) / label0)
             plots.channel_view(g.blisk.channel_meshes(channel, resolution=1.0), export.electrode_mesh,
                                export.poses, out_dir / "channel.glb", out_dir / "channel.png")
