@@ -31,7 +31,8 @@ def axis_curves(x, values, axis_names, path, xlabel, title, marks=()):
             if k == 0:
                 ax.annotate(label, (at, 1.0), xycoords=("data", "axes fraction"), fontsize=7, rotation=90,
                             va="bottom", ha="right")
-        ax.set_ylabel(f"{name} [{_UNIT.get(name, '')}]")
+        # planner axes (X .. C) or machine joints named after them (edm_x .. edm_c)
+        ax.set_ylabel(f"{name} [{_UNIT.get(name) or _UNIT.get(name[-1:].upper(), '')}]")
         ax.grid(alpha=0.3)
     np.atleast_1d(axes)[-1].set_xlabel(xlabel)
     fig.suptitle(title)

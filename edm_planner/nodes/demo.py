@@ -257,7 +257,8 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0):
         removal = delivered.get("removal", {})
         print(f"  stock left   exact at wall samples {removal.get('accuracy', {}).get('sample_spacing_mm')} mm "
               f"apart, tolerance {removal.get('tolerance_mm')} mm:")
-        for name, f in removal.get("surfaces", {}).items():
+        for name, f in sorted(removal.get("surfaces", {}).items(),
+                              key=lambda kv: ("suction", "pressure", "hub", "shroud").index(kv[0])):
             print(f"    {name:<9} max {f['stock_max_mm']:.4f} mm, mean {f['stock_mean_mm']:.4f} mm, "
                   f"{100 * f['area_fraction_above_tolerance']:.2f} % of the area above "
                   f"({100 * (f['area_fraction_beyond_inherent'] or 0):.2f} % beyond the corner rounding), "
