@@ -98,3 +98,34 @@ def plan_store_of_this_run(tmp_path_factory):
     path = str(tmp_path_factory.mktemp("plan_store"))
     os.environ["EDM_PLANNER_PLAN_STORE"] = path
     return path
+
+
+#: the electrode whose cycle the machining tests share: the rear of a front/rear split, exits downstream
+REAR_GAP, REAR_TOLERANCE = 0.1, 0.02
+
+
+@pytest.fixture(scope="session")
+def rear_cycle(default_geometry, default_field):
+    """(geometry, field, electrode, design, plan with its certified cycle, cycle builder), planned once per process.
+
+    The plan is certified with the machining margin (gap less the tolerance). Tests that change the plan
+    take ``copy.deepcopy`` of it.
+    """
+    from edm_planner.geometry.electrode import ElectrodeDesign, design_electrodes
+    from edm_planner.machining.cycle import CycleBuilder, CycleOptions
+    from edm_planner.planning.plan import PlanOptions
+    from edm_planner.planning.planner import plan_channel
+    from edm_planner.planning.search import SearchOptions
+
+    g, field = default_geometry, default_field
+    design = ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, split="front_rear",
+                             split_overlap=1.0)
+    margin = REAR_GAP - REAR_TOLERANCE
+    electrode = design_electrodes(g.blisk, design, only="rear")[0]
+    opts = PlanOptions(search=SearchOptions(margin_blade=margin, margin_hub_shroud=margin, exit_side="downstream"))
+    plan = plan_channel(g, 0, "rear", opts, field=field, design=design, electrodes=[electrode])
+    assert plan.success, plan.message
+    builder = CycleBuilder(field, electrode, design, plan.axis_names, CycleOptions(tolerance=REAR_TOLERANCE))
+    plan.cycle = builder.build(plan.samples, margin, plan.metrics.min_clearance)
+    assert plan.cycle.certified, plan.cycle.message
+    return g, field, electrode, design, plan, builder

@@ -5,6 +5,7 @@ test_machining_cycle) is planned once per module; a second "electrode" for the p
 plan stored under another id and electrode name (the program logic does not care what the electrode is).
 """
 
+import copy
 import json
 import math
 import sqlite3
@@ -15,22 +16,16 @@ import numpy as np
 import pytest
 
 from edm_planner.errors import EdmError, ErrorCode
-from edm_planner.geometry.electrode import ElectrodeDesign, design_electrodes
-from edm_planner.geometry.loader import load_geometry
-from edm_planner.interference.fast import FastChannelField
+from edm_planner.geometry.electrode import ElectrodeDesign
 from edm_planner.machine.config import default_machine_path, load_machine
 from edm_planner.machine.kinematics import axis_poses
 from edm_planner.machine.nc import PHASE_COLUMNS, nc_program, nc_sequence_program, parse_nc, program_csv
 from edm_planner.machine.trajectory import time_run
-from edm_planner.machining.cycle import PHASES, CycleBuilder, CycleOptions
+from edm_planner.machining.cycle import PHASES
 from edm_planner.machining.program import (INDEX, PlanCycle, blisk_program_steps, program_runs, sequence_id_for,
                                            shift_to_channel)
-from edm_planner.planning.plan import PlanOptions
-from edm_planner.planning.planner import plan_channel
-from edm_planner.planning.search import SearchOptions
 from edm_planner.planning.store import PlanStore, PlanStoreError, plan_to_stored, stored_to_plan
 
-from conftest import CONFIG
 
 GAP, TOLERANCE = 0.1, 0.02
 MARGIN = GAP - TOLERANCE
@@ -46,16 +41,10 @@ REMOVAL = {"meets_tolerance": True, "tolerance_mm": 0.02, "discharge_gap_mm": [0
 
 
 @pytest.fixture(scope="module")
-def rear(field_cache):
-    g = load_geometry(CONFIG / "default_blisk.yaml")
-    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache, cache_key=g.geometry_id)
-    electrode = {e.electrode_id: e for e in design_electrodes(g.blisk, DESIGN)}["rear"]
-    opts = PlanOptions(search=SearchOptions(margin_blade=MARGIN, margin_hub_shroud=MARGIN, exit_side="downstream"))
-    plan = plan_channel(g, 0, "rear", opts, field=field, design=DESIGN)
-    assert plan.success, plan.message
-    builder = CycleBuilder(field, electrode, DESIGN, plan.axis_names, CycleOptions(tolerance=TOLERANCE))
-    plan.cycle = builder.build(plan.samples, MARGIN, plan.metrics.min_clearance)
-    assert plan.cycle.certified, plan.cycle.message
+def rear(rear_cycle):
+    g, field, electrode, design, plan, builder = rear_cycle
+    assert design == DESIGN
+    plan = copy.deepcopy(plan)
     plan.removal, plan.set_id = REMOVAL, "set-of-test"
     return g, electrode, plan
 

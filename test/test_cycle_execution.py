@@ -7,6 +7,7 @@ plan from the ``plan`` topic (the ChannelPlan of the trajectory_planner's channe
 its cycle) and from the plan store (sequences: an electrode set and a short blisk program).
 """
 
+import copy
 import math
 import threading
 import time
@@ -16,18 +17,12 @@ import numpy as np
 import pytest
 
 from edm_planner.errors import EdmError, ErrorCode
-from edm_planner.geometry.electrode import ElectrodeDesign, design_electrodes
-from edm_planner.geometry.loader import load_geometry
-from edm_planner.interference.fast import FastChannelField
+from edm_planner.geometry.electrode import ElectrodeDesign
 from edm_planner.machine.config import default_machine_path, load_machine
 from edm_planner.machine.trajectory import plan_trajectory, time_leg, time_run
-from edm_planner.machining.cycle import PHASES, CycleBuilder, CycleOptions
+from edm_planner.machining.cycle import PHASES, CycleOptions
 from edm_planner.machining.program import PlanCycle, program_runs
-from edm_planner.planning.plan import PlanOptions
-from edm_planner.planning.planner import plan_channel
-from edm_planner.planning.search import SearchOptions
 
-from conftest import CONFIG
 from test_timing import quintic_peaks
 
 GAP, TOLERANCE = 0.1, 0.02
@@ -41,16 +36,10 @@ REMOVAL = {"tolerance_mm": 0.02, "surfaces": {s: {"stock_max_mm": 0.015, "stock_
 
 
 @pytest.fixture(scope="module")
-def rear(field_cache):
-    g = load_geometry(CONFIG / "default_blisk.yaml")
-    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache, cache_key=g.geometry_id)
-    electrode = {e.electrode_id: e for e in design_electrodes(g.blisk, DESIGN)}["rear"]
-    opts = PlanOptions(search=SearchOptions(margin_blade=MARGIN, margin_hub_shroud=MARGIN, exit_side="downstream"))
-    plan = plan_channel(g, 0, "rear", opts, field=field, design=DESIGN)
-    assert plan.success, plan.message
-    builder = CycleBuilder(field, electrode, DESIGN, plan.axis_names, CycleOptions(tolerance=TOLERANCE))
-    plan.cycle = builder.build(plan.samples, MARGIN, plan.metrics.min_clearance)
-    assert plan.cycle.certified, plan.cycle.message
+def rear(rear_cycle):
+    g, field, electrode, design, plan, builder = rear_cycle
+    assert design == DESIGN
+    plan = copy.deepcopy(plan)
     return g, plan
 
 

@@ -7,6 +7,7 @@ rotation of copy processing lands each side face exactly on its wall's gap
 offset) and made to overcut on purpose.
 """
 
+import copy
 from dataclasses import replace
 
 import numpy as np
@@ -15,14 +16,10 @@ import pytest
 from edm_planner.geometry.electrode import ElectrodeDesign, design_electrodes
 from edm_planner.geometry.frames import rotation_about_x
 from edm_planner.geometry.loader import load_geometry
-from edm_planner.interference.fast import FastChannelField
 from edm_planner.machine.kinematics import axis_poses
-from edm_planner.machining.cycle import PHASES, CycleBuilder, CycleOptions, comb_shares, side_rotations
+from edm_planner.machining.cycle import PHASES, CycleOptions, comb_shares, side_rotations
 from edm_planner.machining.electrode_set import Piece, SetDesigner, SetOptions, candidate_sets, write_set
 from edm_planner.machining.removal import simulate_removal
-from edm_planner.planning.plan import PlanOptions
-from edm_planner.planning.planner import plan_channel
-from edm_planner.planning.search import SearchOptions
 
 from conftest import CONFIG
 
@@ -32,16 +29,11 @@ DESIGN = ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, s
 
 
 @pytest.fixture(scope="module")
-def rear(field_cache):
-    g = load_geometry(CONFIG / "default_blisk.yaml")
-    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache, cache_key=g.geometry_id)
-    electrode = {e.electrode_id: e for e in design_electrodes(g.blisk, DESIGN)}["rear"]
-    opts = PlanOptions(search=SearchOptions(margin_blade=MARGIN, margin_hub_shroud=MARGIN, exit_side="downstream"))
-    plan = plan_channel(g, 0, "rear", opts, field=field, design=DESIGN)
-    assert plan.success, plan.message
-    builder = CycleBuilder(field, electrode, DESIGN, plan.axis_names, CycleOptions(tolerance=TOLERANCE))
-    cycle = builder.build(plan.samples, MARGIN, plan.metrics.min_clearance)
-    return g, field, electrode, plan, builder, cycle
+def rear(rear_cycle):
+    g, field, electrode, design, plan, builder = rear_cycle
+    assert design == DESIGN
+    plan = copy.deepcopy(plan)
+    return g, field, electrode, plan, builder, plan.cycle
 
 
 def test_the_cycle_runs_every_phase_in_order_and_is_certified(rear):
