@@ -253,6 +253,7 @@ class SetDesigner:
         self.field_cache = field_cache
         self.workers = int(workers or os.cpu_count() or 1)
         self._pool = None
+        self._wall_samples = None
         self.t0 = None
         self._where, self._name = (0, 1, 0, 1), ""
         b = self.blisk
@@ -383,8 +384,11 @@ class SetDesigner:
         from .removal import simulate_removal
 
         ideal = self._designed(replace(self.base, split="none"), "main")[0]
+        if self._wall_samples is None:                # the same walls for every candidate
+            from .removal import wall_samples
+            self._wall_samples = wall_samples(self.blisk, self.options.removal_spacing)
         report = simulate_removal(self.blisk, self.sweeps(candidate), self.base.discharge_gap,
-                                  tolerance=self.options.tolerance, spacing=self.options.removal_spacing,
+                                  tolerance=self.options.tolerance, samples=self._wall_samples,
                                   reference=[(ideal.mesh.vertices, ideal.mesh.faces, ideal.final_pose[None])])
         candidate.removal = report
         return report
