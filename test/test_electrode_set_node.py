@@ -23,19 +23,23 @@ def nodes(tmp_path_factory, field_cache):
 
     store = tmp_path_factory.mktemp("set_store")
     procs = NodeProcesses(tmp_path_factory.mktemp("set_logs"))
-    procs.start("geometry_loader", params={"geometry_file": str(CONFIG / "default_blisk.yaml")})
-    procs.start("trajectory_planner", params={"cache_dir": field_cache, "plan_store": str(store),
-                                              "unknown_geometry_wait": 120.0})
-    ros = InProcessRos()
-    from rclpy.node import Node
-    client = ros.add(Node("set_client", context=ros.context))
-    load = ros.call(client, LoadGeometry, "load_geometry",
-                    LoadGeometry.Request(path=str(CONFIG / "default_blisk.yaml")), timeout=300)
-    assert load.success, load.message
+    ros = None
     try:
+        # the loader reads only its allowed directories: the repository's config is made one of them
+        procs.start("geometry_loader", params={"geometry_file": str(CONFIG / "default_blisk.yaml"),
+                                               "allowed_directories": f"['{CONFIG}']"})
+        procs.start("trajectory_planner", params={"cache_dir": field_cache, "plan_store": str(store),
+                                                  "unknown_geometry_wait": 30.0})
+        ros = InProcessRos()
+        from rclpy.node import Node
+        client = ros.add(Node("set_client", context=ros.context))
+        load = ros.call(client, LoadGeometry, "load_geometry",
+                        LoadGeometry.Request(path=str(CONFIG / "default_blisk.yaml")), timeout=300)
+        assert load.success, load.message
         yield ros, client, load.geometry_id, store, procs
     finally:
-        ros.close()
+        if ros is not None:
+            ros.close()
         procs.stop()
 
 
@@ -48,7 +52,7 @@ def plan_set(nodes, timeout=1800, **fields):
 def test_one_electrode_is_not_enough_and_the_answer_says_why(nodes):
     res = plan_set(nodes, channel=0, max_electrodes=1)
     assert not res.success
-    assert res.error_code.value == ErrorCode.INFEASIBLE
+    assert res.error_code.val == ErrorCode.INFEASIBLE
     assert [c.name for c in res.candidates] == ["one electrode"]
     (c,) = res.candidates
     assert c.status == "infeasible" and "no certified path" in c.reason
@@ -58,11 +62,11 @@ def test_one_electrode_is_not_enough_and_the_answer_says_why(nodes):
 
 def test_bad_requests(nodes):
     res = plan_set(nodes, channel=60)
-    assert res.error_code.value == ErrorCode.INVALID_REQUEST and "channel" in res.message
+    assert res.error_code.val == ErrorCode.INVALID_REQUEST and "channel" in res.message
     res = plan_set(nodes, channel=0, geometry_id="f" * 64, timeout=300)
-    assert res.error_code.value == ErrorCode.UNKNOWN_ID
+    assert res.error_code.val == ErrorCode.UNKNOWN_ID
     res = plan_set(nodes, channel=0, tolerance=0.2)            # not below the 0.1 mm gap
-    assert res.error_code.value == ErrorCode.INVALID_REQUEST and "tolerance" in res.message
+    assert res.error_code.val == ErrorCode.INVALID_REQUEST and "tolerance" in res.message
 
 
 @pytest.mark.slow
@@ -74,10 +78,10 @@ def test_the_set_is_designed_stored_and_answered_again_from_the_store(nodes):
     assert len(first.plan_ids) == len(first.electrode_labels) >= 2
     chosen = [c for c in first.candidates if c.status == "chosen"]
     if first.success:
-        assert first.error_code.value == ErrorCode.SUCCESS
+        assert first.error_code.val == ErrorCode.SUCCESS
         assert len(chosen) == 1 and chosen[0].electrode_count == len(first.plan_ids)
     else:
-        assert first.error_code.value == ErrorCode.INFEASIBLE and not chosen
+        assert first.error_code.val == ErrorCode.INFEASIBLE and not chosen
         assert "leaves the least stock" in first.message
     assert all(c.status != "not tried" or "machines the channel" in c.reason for c in first.candidates)
     proven = [c for c in first.candidates if c.stock_max_exact]

@@ -238,9 +238,13 @@ class PlanStore:
                              f"store to another directory")
 
     def _check_or_create(self):
-        fresh = not self.path.exists() or self.path.stat().st_size == 0
         con = self._connect()
         try:
+            # new, or still empty: another process may have created the file and not yet its tables (the
+            # planner and the bridge start together on a new machine); the creation below is serialised
+            # by BEGIN IMMEDIATE and skipped by whoever comes second
+            fresh = (not con.execute("SELECT name FROM sqlite_master").fetchall()
+                     and con.execute("PRAGMA application_id").fetchone()[0] in (0, APPLICATION_ID))
             if fresh:
                 con.execute("PRAGMA journal_mode=WAL")
                 con.execute(f"PRAGMA application_id={APPLICATION_ID}")
