@@ -87,6 +87,8 @@ class RemovalTolerances:
     batch: int = 250_000
     #: coarse grid per sample direction used to size the wall grids
     pilot: int = 161
+    #: most sample rows or columns of one surface (the grid stops refining there; its spacing is reported)
+    max_grid: int = 3000
 
 
 REMOVAL = RemovalTolerances()
@@ -443,6 +445,17 @@ def _trapezoid(t):
     return w
 
 
+def _steps(pts, inside, shape):
+    """Largest distance in W between neighbouring samples along x and across, where both lie on the wall.
+
+    Samples outside the walls' footprint carry no meaningful position and are left out.
+    """
+    grid, ok = pts.reshape(*shape, 3), np.asarray(inside).reshape(shape)
+    dx = np.linalg.norm(np.diff(grid, axis=1), axis=2)[ok[:, 1:] & ok[:, :-1]]
+    dt = np.linalg.norm(np.diff(grid, axis=0), axis=2)[ok[1:] & ok[:-1]]
+    return float(dx.max(initial=0.0)), float(dt.max(initial=0.0))
+
+
 def _graded(params, stretch, depths=REMOVAL_EDGE_DEPTHS):
     """``params`` (increasing) with extra values at physical ``depths`` [mm] inside both ends.
 
@@ -511,22 +524,21 @@ def wall_samples(blisk, spacing=REMOVAL.spacing):
         # pilot grid: how far samples move in W per unit of each grid parameter
         a = np.linspace(0.0, 1.0, REMOVAL.pilot)
         xx, tt = np.meshgrid(x0 + a * (x1 - x0), a)
-        pts = make(xx, tt)[0].reshape(*xx.shape, 3)
-        along_x = np.linalg.norm(np.diff(pts, axis=1), axis=2).max() * (REMOVAL.pilot - 1)
-        across = np.linalg.norm(np.diff(pts, axis=0), axis=2).max() * (REMOVAL.pilot - 1)
+        pts, _, inside, _ = make(xx, tt)
+        along_x, across = (s * (REMOVAL.pilot - 1) for s in _steps(pts, inside, xx.shape))
         nx, nt = _grid_count(1.0, along_x, spacing), _grid_count(1.0, across, spacing)
+        cap = REMOVAL.max_grid
         for _ in range(4):
             xs, ts = np.linspace(x0, x1, nx), np.linspace(0.0, 1.0, nt)
             xx, tt = np.meshgrid(xs, ts)
             pts, v, inside, jac = make(xx, tt)
-            grid = pts.reshape(nt, nx, 3)
-            step_x = np.linalg.norm(np.diff(grid, axis=1), axis=2).max()
-            step_t = np.linalg.norm(np.diff(grid, axis=0), axis=2).max()
-            if max(step_x, step_t) <= spacing:
+            step_x, step_t = _steps(pts, inside, xx.shape)
+            if max(step_x, step_t) <= spacing or max(nx, nt) >= cap:
                 break
-            # the pilot grid missed a tighter bend: refine by the excess
-            nx = int(np.ceil((nx - 1) * max(step_x / spacing, 1.0))) + 1
-            nt = int(np.ceil((nt - 1) * max(step_t / spacing, 1.0))) + 1
+            # the pilot grid missed a tighter bend: refine by the excess (never beyond the cap: a
+            # degenerate corner of the surface must not take the memory)
+            nx = min(int(np.ceil((nx - 1) * max(step_x / spacing, 1.0))) + 1, cap)
+            nt = min(int(np.ceil((nt - 1) * max(step_t / spacing, 1.0))) + 1, cap)
         reach = max(step_x, step_t)
         # rows graded towards every edge: the corner fillets (about gap (sqrt 2 - 1) deep, a few
         # hundredths wide) and the end strips are narrower than the spacing, and a boundary row's
