@@ -9,7 +9,6 @@ its cycle) and from the plan store (sequences: an electrode set and a short blis
 
 import copy
 import math
-import threading
 import time
 from dataclasses import replace
 
@@ -23,6 +22,7 @@ from edm_planner.machine.trajectory import plan_trajectory, time_leg, time_run
 from edm_planner.machining.cycle import PHASES, CycleOptions
 from edm_planner.machining.program import PlanCycle, program_runs
 
+from test_axis_bridge_node import Inbox
 from test_timing import quintic_peaks
 
 GAP, TOLERANCE = 0.1, 0.02
@@ -165,20 +165,6 @@ def test_a_leg_beyond_the_travel_is_refused(rear, machine, tmp_path):
 
 
 # -- over DDS ----------------------------------------------------------------------------------------
-
-class Inbox:
-    def __init__(self):
-        self.items, self.cond = [], threading.Condition()
-
-    def __call__(self, msg):
-        with self.cond:
-            self.items.append(msg)
-            self.cond.notify_all()
-
-    def wait(self, count, timeout):
-        with self.cond:
-            return self.cond.wait_for(lambda: len(self.items) >= count, timeout)
-
 
 @pytest.fixture(scope="module")
 def bridge(rear, tmp_path_factory):

@@ -334,21 +334,9 @@ class SetDesigner:
             p, d = self._plan(piece, h_hi, 0.0)
             if p is not None:
                 r_hi, best = 0.0, (p, d)
-        while r_hi - lo > o.radial_resolution and not self._out_of_time():
-            mid = 0.5 * (lo + r_hi)
-            p, d = self._plan(piece, h_hi, mid)
-            if p is None:
-                lo = mid
-            else:
-                r_hi, best = mid, (p, d)
-        lo = 0.0                                   # then the thickest electrode
-        while h_hi - lo > o.circumferential_resolution and not self._out_of_time():
-            mid = 0.5 * (lo + h_hi)
-            p, d = self._plan(piece, mid, r_hi)
-            if p is None:
-                lo = mid
-            else:
-                h_hi, best = mid, (p, d)
+        r_hi, best = self._bisect(lo, r_hi, o.radial_resolution, lambda r: self._plan(piece, h_hi, r), best)
+        # then the thickest electrode
+        h_hi, best = self._bisect(0.0, h_hi, o.circumferential_resolution, lambda h: self._plan(piece, h, r_hi), best)
         piece.plan, piece.design = best
         electrode = self._electrode(piece)
         piece.volume = float(electrode.mesh.volume)
@@ -363,6 +351,18 @@ class SetDesigner:
         if key not in self._designs:
             self._designs[key] = design_electrodes(self.blisk, design, only=electrode_id)
         return self._designs[key]
+
+    def _bisect(self, lo, hi, resolution, attempt, best):
+        """Smallest value in (lo, hi] with a certified plan (``attempt(v) -> (plan or None, design)``);
+        ``hi`` is known to have one (``best``). Returns (value, (plan, design))."""
+        while hi - lo > resolution and not self._out_of_time():
+            mid = 0.5 * (lo + hi)
+            plan, design = attempt(mid)
+            if plan is None:
+                lo = mid
+            else:
+                hi, best = mid, (plan, design)
+        return hi, best
 
     def _electrode(self, piece):
         for e in self._designed(piece.design, piece.electrode_id):
