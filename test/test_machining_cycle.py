@@ -214,3 +214,22 @@ def test_write_set_of_a_one_piece_result(rear, tmp_path):
     assert rows[0].startswith("phase,leg,X_mm,Y_mm,Z_mm,A_rad,C_rad")
     assert len(rows) - 1 == len(cycle.samples)
     assert rows[1].split(",")[0] == "approach" and rows[-1].split(",")[0] == "retract"
+
+
+def test_the_sizing_bisection_finds_the_smallest_certified_value():
+    """The bracket narrows to the resolution around the threshold; below it nothing is taken."""
+    import time as _time
+
+    designer = SetDesigner.__new__(SetDesigner)          # only the bisection: no geometry needed
+    designer.options, designer.t0 = SetOptions(), _time.perf_counter()
+    tried = []
+
+    def attempt(v):
+        tried.append(v)
+        return ("plan", f"design {v:.4f}") if v >= 0.3 else (None, None)
+
+    value, best = designer._bisect(0.0, 2.0, 0.01, attempt, ("plan", "design 2"))
+    assert 0.3 <= value <= 0.31 and best == ("plan", f"design {value:.4f}")
+    assert len(tried) == 8                               # log2(2 / 0.01) halvings
+    value, best = designer._bisect(0.0, 0.2, 0.01, attempt, ("plan", "start"))
+    assert value == 0.2 and best == ("plan", "start")    # nothing below the start is certified
