@@ -593,7 +593,6 @@ def write_set(result, out_dir, blisk, store=None):
     pathlib.Path
         set.json.
     """
-    import json
     import pathlib
 
     from ..planning.export import json_safe, write_plan
@@ -626,12 +625,7 @@ def write_set(result, out_dir, blisk, store=None):
         plot_stock_maps(shown.removal, out / "stock.png")
         write_stock_glb(shown.removal, blisk, result.channel, out / "stock.glb")
         doc["stock_map"] = {"file": "stock.png", "glb": "stock.glb", "candidate": shown.name}
-    path = out / "set.json"
-    try:
-        path.write_text(json.dumps(doc, indent=1, allow_nan=False))
-    except OSError as exc:
-        raise EdmError(ErrorCode.FILE_ERROR, f"cannot write {path}: {exc}") from exc
-    return path
+    return _write_set_json(out, doc)
 
 
 def write_stored_set(plans, labels, meta, out_dir, blisk):
@@ -640,7 +634,6 @@ def write_stored_set(plans, labels, meta, out_dir, blisk):
     The stock map needs the proof's arrays, which the store does not keep: an
     existing ``stock.png`` of the same set (same directory) is left in place.
     """
-    import json
     import pathlib
 
     from ..planning.export import json_safe, write_plan
@@ -655,12 +648,7 @@ def write_stored_set(plans, labels, meta, out_dir, blisk):
                                   "export": str(path.parent.relative_to(out))})
     if (out / "stock.png").exists():
         doc["stock_map"] = {"file": "stock.png", "candidate": meta.get("delivered")}
-    path = out / "set.json"
-    try:
-        path.write_text(json.dumps(doc, indent=1, allow_nan=False))
-    except OSError as exc:
-        raise EdmError(ErrorCode.FILE_ERROR, f"cannot write {path}: {exc}") from exc
-    return path
+    return _write_set_json(out, doc)
 
 
 def write_stock_glb(report, blisk, channel, path, resolution=0.25):
@@ -677,4 +665,15 @@ def write_stock_glb(report, blisk, channel, path, resolution=0.25):
                                                                                      transform=transform))
         scene.add_geometry(m, node_name=f"{name} (stock)")
     scene.export(path)
+    return path
+
+
+def _write_set_json(out, doc):
+    import json
+
+    path = out / "set.json"
+    try:
+        path.write_text(json.dumps(doc, indent=1, allow_nan=False))
+    except OSError as exc:
+        raise EdmError(ErrorCode.FILE_ERROR, f"cannot write {path}: {exc}") from exc
     return path
