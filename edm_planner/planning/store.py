@@ -308,15 +308,19 @@ class PlanStore:
             con.close()
         log.info("stored plan %s in %s", stored.plan_id, self.path)
 
-    def _one(self, where, value):
+    def _fetch_one(self, sql, params):
+        """One row of a read (or None); an unreadable store is a PlanStoreError."""
         con = self._connect()
         try:
-            row = con.execute(f"SELECT plan_id, sha256, record FROM plans WHERE {where} = ? "
-                              f"ORDER BY created DESC LIMIT 1", (value,)).fetchone()
+            return con.execute(sql, params).fetchone()
         except sqlite3.Error as exc:
             raise PlanStoreError(f"cannot read the plan store {self.path}: {exc}") from None
         finally:
             con.close()
+
+    def _one(self, where, value):
+        row = self._fetch_one(f"SELECT plan_id, sha256, record FROM plans WHERE {where} = ? "
+                              f"ORDER BY created DESC LIMIT 1", (value,))
         if row is None:
             return None
         plan_id, digest, blob = row
@@ -432,14 +436,7 @@ class PlanStore:
 
     def get_sequence(self, sequence_id):
         """The :class:`StoredSequence` of ``sequence_id``, or None."""
-        con = self._connect()
-        try:
-            row = con.execute("SELECT sha256, record FROM sequences WHERE sequence_id = ?",
-                              (sequence_id,)).fetchone()
-        except sqlite3.Error as exc:
-            raise PlanStoreError(f"cannot read the plan store {self.path}: {exc}") from None
-        finally:
-            con.close()
+        row = self._fetch_one("SELECT sha256, record FROM sequences WHERE sequence_id = ?", (sequence_id,))
         if row is None:
             return None
         digest, blob = row
