@@ -214,7 +214,7 @@ def _box_mesh(lattice):
     return mesh
 
 
-def design_electrodes(blisk, design=None, only=None):
+def design_electrodes(blisk, design=None, only=None, walls_cache=None):
     """Design the electrode(s) of channel 0.
 
     Parameters
@@ -223,6 +223,10 @@ def design_electrodes(blisk, design=None, only=None):
     design : ElectrodeDesign, optional
     only : str, optional
         Design just the electrode of this id (the other part of a split is skipped).
+    walls_cache : dict, optional
+        Offset walls kept across designs of the same blisk (the caller's, one per
+        blisk): designs that differ only in the circumferential reduction, the
+        reduction side or the split reuse them (h only turns the side faces).
 
     Returns
     -------
@@ -245,9 +249,9 @@ def design_electrodes(blisk, design=None, only=None):
         if lo <= x0 + design.resolution or hi >= x1 - design.resolution:
             raise GeometryError("electrode.split_overlap: the overlap is longer than a sub-electrode")
         ranges = {"front": (x0, hi), "rear": (lo, x1)}
-        parts = {k: _walls(blisk, design, *r) for k, r in ranges.items() if only in (None, k)}
+        parts = {k: _walls(blisk, design, *r, cache=walls_cache) for k, r in ranges.items() if only in (None, k)}
     else:
-        parts = _split_sides(design, *_walls(blisk, design, x0, x1))
+        parts = _split_sides(design, *_walls(blisk, design, x0, x1, cache=walls_cache))
     electrodes = []
     for name, (X, R, tl, tr) in parts.items():
         if only is not None and name != only:
@@ -272,8 +276,37 @@ def design_electrodes(blisk, design=None, only=None):
     return electrodes
 
 
-def _walls(blisk, design, x0, x1):
+def _walls(blisk, design, x0, x1, cache=None):
     """Lattice stations and side angles over [x0, x1]: (X, R, theta_left, theta_right), each (nx, nr).
+
+    The discharge-gap offsets (``_offset_walls``) come from ``cache`` when it
+    holds them; the circumferential reduction is applied here.
+    """
+    key = (design.discharge_gap, design.resolution, design.chord_tolerance, design.radial_reduction, x0, x1)
+    walls = None if cache is None else cache.get(key)
+    if walls is None:
+        walls = _offset_walls(blisk, design, x0, x1)
+        if cache is not None:
+            cache[key] = walls
+    x, R, th_l, th_r = walls
+    h = design.circumferential_reduction
+    if design.reduction_side == "left":
+        th_l = th_l + h
+    elif design.reduction_side == "right":
+        th_r = th_r - h
+    else:
+        th_l, th_r = th_l + h / 2, th_r - h / 2
+    width = (th_r - th_l) * R
+    if width.min() < TOL.min_feature:
+        raise GeometryError(
+            f"electrode.circumferential_reduction: h = {h:g} rad leaves no electrode "
+            f"(narrowest channel after the gap: {np.min(width + h * R):.3f} mm)")
+    X = np.repeat(x[:, None], R.shape[1], axis=1)
+    return X, R, th_l, th_r
+
+
+def _offset_walls(blisk, design, x0, x1):
+    """Axial stations, radii and the side angles at the discharge gap over [x0, x1]: (x, R, theta_l, theta_r).
 
     The axial stations start at the design resolution and are refined where a
     flat lattice triangle would leave the exact offset surface by more than
@@ -357,20 +390,7 @@ def _walls(blisk, design, x0, x1):
         R = np.concatenate([R, Rm[:, bad]], axis=1)[:, order]
         th_l = np.concatenate([th_l, lm[:, bad]], axis=1)[:, order]
         th_r = np.concatenate([th_r, rm[:, bad]], axis=1)[:, order]
-    h = design.circumferential_reduction
-    if design.reduction_side == "left":
-        th_l = th_l + h
-    elif design.reduction_side == "right":
-        th_r = th_r - h
-    else:
-        th_l, th_r = th_l + h / 2, th_r - h / 2
-    width = (th_r - th_l) * R
-    if width.min() < TOL.min_feature:
-        raise GeometryError(
-            f"electrode.circumferential_reduction: h = {h:g} rad leaves no electrode "
-            f"(narrowest channel after the gap: {np.min(width + h * R):.3f} mm)")
-    X = np.repeat(x[:, None], R.shape[1], axis=1)
-    return X, R, th_l, th_r
+    return x, R, th_l, th_r
 
 
 def _offset_pressure(blisk, x, r, theta, grad, gap):

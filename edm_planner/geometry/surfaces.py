@@ -7,17 +7,23 @@ through its S x C section points. Two questions recur everywhere:
   ``x(u, v) = x0, r(u, v) = r0`` by Newton's method (the map (u, v) -> (x, r)
   is one to one over the blade: stations run monotonically along the chord
   and sections monotonically along the span);
-* which face point is closest to a point in space? -- Gauss-Newton on
-  ``|S(u, v) - p|^2``, started from the (x, r) inversion.
+* which face point is closest to a point in space? -- Newton on
+  ``|S(u, v) - p|^2`` with backtracking, started from the nearest of a dense
+  set of face samples.
+
+Both run in the numba kernels of :mod:`.spline_kernels` (the same surface,
+evaluated from its control net and knots); numpy only finds the starts.
 """
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from .nurbs import interpolate_surface
+from .spline_kernels import closest_points_many, eval_many, kernel_net, uv_at_many
 
-_NEWTON_ITERATIONS = 30
-_NEWTON_TOL = 1e-11
+#: closest points: Newton stops when a step moves the foot by less than this [mm]
+_PROJECT_TOL = 1e-9
+_PROJECT_ITERATIONS = 100
 
 
 class BladeFace:
@@ -49,11 +55,25 @@ class BladeFace:
         uu, vv = np.meshgrid(np.linspace(0, 1, m), np.linspace(0, 1, m))
         self._dense_uv = np.column_stack([uu.ravel(), vv.ravel()])
         self._dense_tree = cKDTree(self.surface.evaluate(uu, vv).reshape(-1, 3))
+        self._net = kernel_net(self.surface)
+
+    def __getstate__(self):                       # the kernel net is rebuilt, not pickled twice
+        state = dict(self.__dict__)
+        state.pop("_net", None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._net = kernel_net(self.surface)
+
+    def _derivatives(self, u, v):
+        """S, S_u, S_v at (u, v), each (n, 3)."""
+        ev = eval_many(*self._net, np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(v, dtype=np.float64))
+        return ev[:, 0], ev[:, 1], ev[:, 2]
 
     # -- meridional position ------------------------------------------------
     def _xr_and_jacobian(self, u, v):
-        s = self.surface.evaluate(u, v)
-        s_u, s_v = self.surface.derivatives(u, v)
+        s, s_u, s_v = self._derivatives(u, v)
         r = np.hypot(s[..., 1], s[..., 2])
         r_u = (s[..., 1] * s_u[..., 1] + s[..., 2] * s_u[..., 2]) / r
         r_v = (s[..., 1] * s_v[..., 1] + s[..., 2] * s_v[..., 2]) / r
@@ -61,6 +81,10 @@ class BladeFace:
 
     def uv_at(self, x, r):
         """Face parameters at meridional positions (x, r).
+
+        Newton on ``(x(u, v), r(u, v)) = (x, r)`` from the nearest of 64 x 64
+        face samples in scaled (x, r), steps damped to 0.25 and clipped to
+        [0, 1], down to steps of 1e-11.
 
         Parameters
         ----------
@@ -78,24 +102,9 @@ class BladeFace:
         r = np.atleast_1d(np.asanyarray(r, dtype=np.float64))
         target = np.column_stack([x, r])
         _, idx = self._xr_tree.query(target / self._xr_scale)
-        uv = self._seed_uv[idx].copy()
-        for _ in range(_NEWTON_ITERATIONS):
-            s, rr, jac, _, _ = self._xr_and_jacobian(uv[:, 0], uv[:, 1])
-            res = np.column_stack([s[:, 0], rr]) - target
-            det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
-            det = np.where(np.abs(det) < 1e-300, 1e-300, det)
-            du = (jac[:, 1, 1] * res[:, 0] - jac[:, 0, 1] * res[:, 1]) / det
-            dv = (-jac[:, 1, 0] * res[:, 0] + jac[:, 0, 0] * res[:, 1]) / det
-            step = np.column_stack([du, dv])
-            # damp big steps: the footprint's edges bend
-            big = np.abs(step).max(axis=1) > 0.25
-            step[big] *= (0.25 / np.abs(step[big]).max(axis=1))[:, None]
-            uv = np.clip(uv - step, 0.0, 1.0)
-            if np.abs(step).max() < _NEWTON_TOL:
-                break
-        s, rr, _, _, _ = self._xr_and_jacobian(uv[:, 0], uv[:, 1])
-        resid = np.hypot(s[:, 0] - x, rr - r)
-        return uv[:, 0], uv[:, 1], resid < 1e-7
+        uv, inside = uv_at_many(*self._net, np.ascontiguousarray(x), np.ascontiguousarray(r),
+                                np.ascontiguousarray(self._seed_uv[idx]))
+        return uv[:, 0], uv[:, 1], inside
 
     def theta_at(self, x, r, with_gradient=False):
         """Angle of the face at (x, r) [rad], optionally with (d theta/dx, d theta/dr) [rad/mm].
@@ -119,14 +128,15 @@ class BladeFace:
         return theta, inside, grad
 
     # -- closest points -------------------------------------------------------
-    def closest_points(self, points, iterations=60):
+    def closest_points(self, points):
         """Closest points on the face (boundary included) and their distances.
 
-        Gauss-Newton on ``|S(u, v) - p|^2`` with backtracking: a step is kept
-        only where it lowers the distance (halved up to 12 times otherwise), so
-        the iteration cannot oscillate for points farther from the face than
-        its radius of curvature; it starts from the nearest of 128 x 128
-        surface samples, so it settles in the global minimum's basin.
+        Newton on ``|S(u, v) - p|^2`` (Gauss-Newton where the Hessian is not
+        positive definite) with backtracking, so a step is kept only where it
+        lowers the distance; it starts from the nearest of 128 x 128 surface
+        samples, so it settles in the global minimum's basin, and a foot that
+        ends on the face's boundary is tried again from inside
+        (``spline_kernels.project_edge``).
 
         Parameters
         ----------
@@ -140,44 +150,8 @@ class BladeFace:
             Unsigned [mm].
         uv : (n, 2) float
         """
-        p = np.atleast_2d(np.asanyarray(points, dtype=np.float64))
+        p = np.ascontiguousarray(np.atleast_2d(np.asanyarray(points, dtype=np.float64)))
         _, idx = self._dense_tree.query(p)
-        uv = self._dense_uv[idx].copy()
-        s = self.surface.evaluate(uv[:, 0], uv[:, 1])
-        f = np.einsum("ij,ij->i", s - p, s - p)
-        active = np.ones(len(p), dtype=bool)
-        for _ in range(iterations):
-            if not active.any():
-                break
-            a = np.where(active)[0]
-            ua = uv[a]
-            s_u, s_v = self.surface.derivatives(ua[:, 0], ua[:, 1])
-            d = s[a] - p[a]
-            a11 = np.einsum("ij,ij->i", s_u, s_u)
-            a12 = np.einsum("ij,ij->i", s_u, s_v)
-            a22 = np.einsum("ij,ij->i", s_v, s_v)
-            b1 = np.einsum("ij,ij->i", s_u, d)
-            b2 = np.einsum("ij,ij->i", s_v, d)
-            det = a11 * a22 - a12**2
-            det = np.where(det < 1e-300, 1e-300, det)
-            step = np.column_stack([(a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det])
-            big = np.abs(step).max(axis=1) > 0.1
-            step[big] *= (0.1 / np.abs(step[big]).max(axis=1))[:, None]
-            scale = np.ones(len(a))
-            pending = np.ones(len(a), dtype=bool)
-            new_uv, new_s, new_f = ua.copy(), s[a].copy(), f[a].copy()
-            for _ in range(12):                     # backtracking: accept only descent
-                k = np.where(pending)[0]
-                cand = np.clip(ua[k] - scale[k, None] * step[k], 0.0, 1.0)
-                cs = self.surface.evaluate(cand[:, 0], cand[:, 1])
-                cf = np.einsum("ij,ij->i", cs - p[a[k]], cs - p[a[k]])
-                ok = cf <= f[a[k]]
-                new_uv[k[ok]], new_s[k[ok]], new_f[k[ok]] = cand[ok], cs[ok], cf[ok]
-                pending[k[ok]] = False
-                scale[k[~ok]] *= 0.5
-                if not pending.any():
-                    break
-            moved = np.abs(new_uv - ua).max(axis=1)
-            uv[a], s[a], f[a] = new_uv, new_s, new_f
-            active[a] = moved > 1e-13
-        return s, np.sqrt(f), uv
+        feet, f, uv = closest_points_many(*self._net, p, np.ascontiguousarray(self._dense_uv[idx]),
+                                          _PROJECT_TOL, _PROJECT_ITERATIONS)
+        return feet, np.sqrt(f), uv

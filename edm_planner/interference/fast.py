@@ -68,6 +68,8 @@ from scipy.spatial import cKDTree
 
 from . import SURFACES
 from ..geometry.frames import cylindrical_to_cartesian, rotation_about_x
+from ..geometry.spline_kernels import (  # noqa: F401  (spline_surface_eval: public name kept)
+    new_work, project, project_edge, spline_surface_eval, surface_eval, uv_at)
 from .exact_points import ExactChannelDistance
 
 _log = logging.getLogger(__name__)
@@ -106,331 +108,6 @@ _ATAN = _atan_coefficients()
 _NPAR = _SCALE + 4      # _SCALE .. _SCALE + 3: mm per unit u, v of the suction and the pressure face
 # indices into the integer parameter vector
 (_NX, _NR, _NT, _COARSE, _NCX, _NCR, _NCT, _NHX, _NHR, _NIPAR) = range(10)
-
-
-# ===========================================================================
-# Bicubic B-spline evaluation (numba)
-# ===========================================================================
-# scipy's BSpline / NdBSpline cannot be called from numba code, so this small
-# evaluator of a clamped cubic tensor-product B-spline is written out here
-# (Piegl & Tiller, The NURBS Book, A2.1 and eq. 2.5, 2.9). It evaluates exactly the
-# surface of ``nurbs.SplineSurface``: same control net (nv, nu, 3), same knots.
-
-@numba.njit(cache=True)
-def _find_span(knots, n_ctrl, t):
-    """Knot span i with knots[i] <= t < knots[i+1], i in [3, n_ctrl - 1] (clamped cubic)."""
-    if t >= knots[n_ctrl]:
-        return n_ctrl - 1
-    if t <= knots[3]:
-        return 3
-    lo, hi = 3, n_ctrl
-    while hi - lo > 1:
-        mid = (lo + hi) >> 1
-        if t < knots[mid]:
-            hi = mid
-        else:
-            lo = mid
-    return lo
-
-
-@numba.njit(cache=True, fastmath=True)
-def _basis3(t, i, x, out):
-    """The 4 non-zero cubic basis functions ``N_{i-3..i}`` at x and their first two derivatives.
-
-    Cox-de Boor written out for degree 3 on the span ``t[i] <= x < t[i+1]``
-    (every denominator spans that non-empty interval); ``out`` (3, 4)
-    receives ``d^k N_{i-3+j} / dx^k`` in ``out[k, j]``.
-    """
-    tm2, tm1, t0, t1, t2, t3 = t[i - 2], t[i - 1], t[i], t[i + 1], t[i + 2], t[i + 3]
-    # degree 1: N_{i-1,1}, N_{i,1}
-    b1 = (x - t0) / (t1 - t0)
-    a1 = 1.0 - b1
-    # degree 2: N_{i-2,2}, N_{i-1,2}, N_{i,2}
-    d1a = t1 - tm1
-    d1b = t2 - t0
-    ba = a1 / d1a                     # N_{i-1,1} / (t_{i+1} - t_{i-1})
-    bb = b1 / d1b                     # N_{i,1} / (t_{i+2} - t_i)
-    n2a = (t1 - x) * ba
-    n2b = (x - tm1) * ba + (t2 - x) * bb
-    n2c = (x - t0) * bb
-    # degree 3
-    d2a = t1 - tm2
-    d2b = t2 - tm1
-    d2c = t3 - t0
-    aa = n2a / d2a
-    ab = n2b / d2b
-    ac = n2c / d2c
-    out[0, 0] = (t1 - x) * aa
-    out[0, 1] = (x - tm2) * aa + (t2 - x) * ab
-    out[0, 2] = (x - tm1) * ab + (t3 - x) * ac
-    out[0, 3] = (x - t0) * ac
-    out[1, 0] = -3.0 * aa
-    out[1, 1] = 3.0 * (aa - ab)
-    out[1, 2] = 3.0 * (ab - ac)
-    out[1, 3] = 3.0 * ac
-    # second derivatives: N'_{j,2} = 2 (N_{j,1}/(t_{j+2}-t_j) - N_{j+1,1}/(t_{j+3}-t_{j+1}))
-    ca = -2.0 * ba / d2a
-    cb = 2.0 * (ba - bb) / d2b
-    cc = 2.0 * bb / d2c
-    out[2, 0] = -3.0 * ca
-    out[2, 1] = 3.0 * (ca - cb)
-    out[2, 2] = 3.0 * (cb - cc)
-    out[2, 3] = 3.0 * cc
-
-
-@numba.njit(cache=True)
-def _new_work():
-    """Scratch arrays of one evaluator: (bu, bv, ev)."""
-    return (np.empty((3, 4)), np.empty((3, 4)), np.empty((6, 3)))
-
-
-@numba.njit(cache=True, fastmath=True)
-def _surface_eval(cp, tu, tv, u, v, work):
-    """S, S_u, S_v, S_uu, S_uv, S_vv at (u, v) into ``work[2]`` (6, 3).
-
-    ``cp`` is the control net by coordinate, (3, nv, nu): each coordinate's
-    4 x 4 block is read row by row from contiguous memory.
-    """
-    bu, bv, ev = work
-    su = _find_span(tu, cp.shape[2], u)
-    sv = _find_span(tv, cp.shape[1], v)
-    _basis3(tu, su, u, bu)
-    _basis3(tv, sv, v, bv)
-    for c in range(3):
-        net = cp[c]
-        s00 = s01 = s02 = s10 = s11 = s20 = 0.0
-        for j in range(4):
-            row = sv - 3 + j
-            a0 = a1 = a2 = 0.0
-            for i in range(4):
-                q = net[row, su - 3 + i]
-                a0 += bu[0, i] * q
-                a1 += bu[1, i] * q
-                a2 += bu[2, i] * q
-            s00 += bv[0, j] * a0
-            s01 += bv[0, j] * a1
-            s02 += bv[0, j] * a2
-            s10 += bv[1, j] * a0
-            s11 += bv[1, j] * a1
-            s20 += bv[2, j] * a0
-        ev[0, c] = s00
-        ev[1, c] = s01
-        ev[2, c] = s10
-        ev[3, c] = s02
-        ev[4, c] = s11
-        ev[5, c] = s20
-
-
-@numba.njit(cache=True)
-def _eval_many(cp, tu, tv, u, v):
-    out = np.empty((u.shape[0], 6, 3))
-    work = _new_work()
-    for k in range(u.shape[0]):
-        _surface_eval(cp, tu, tv, min(max(u[k], 0.0), 1.0), min(max(v[k], 0.0), 1.0), work)
-        out[k] = work[2]
-    return out
-
-
-def spline_surface_eval(control_points, knots_u, knots_v, u, v):
-    """Evaluate a clamped bicubic B-spline surface and its derivatives with the numba evaluator.
-
-    Parameters
-    ----------
-    control_points : (nv, nu, 3) float
-        Control net, ``[j, i]`` with j along v, i along u (as ``SplineSurface``).
-    knots_u, knots_v : (nu + 4,), (nv + 4,) float
-        Clamped cubic knot vectors.
-    u, v : (n,) float
-        Parameters in [0, 1] (clipped).
-
-    Returns
-    -------
-    (n, 6, 3) float
-        ``S, S_u, S_v, S_uu, S_uv, S_vv`` at each (u, v) [mm, per unit parameter].
-    """
-    cp = np.ascontiguousarray(np.moveaxis(np.asarray(control_points, dtype=np.float64), 2, 0))
-    u, v = np.broadcast_arrays(np.asarray(u, dtype=np.float64).ravel(), np.asarray(v, dtype=np.float64).ravel())
-    return _eval_many(cp, np.ascontiguousarray(knots_u, dtype=np.float64),
-                      np.ascontiguousarray(knots_v, dtype=np.float64),
-                      np.ascontiguousarray(u), np.ascontiguousarray(v))
-
-
-# ===========================================================================
-# Point queries on one face (numba)
-# ===========================================================================
-
-@numba.njit(cache=True)
-def _project(cp, tu, tv, px, py, pz, u, v, work, tol, max_iter):
-    """Closest point of the face to p by Newton's method with backtracking.
-
-    Minimises ``f = |S(u, v) - p|^2`` over [0, 1]^2 from (u, v): full Newton
-    where the Hessian is positive definite, Gauss-Newton otherwise; a
-    parameter at its bound whose gradient points outwards is held (active
-    set); a step is kept only where it does not increase f (halved up to 30
-    times otherwise), as in ``BladeFace.closest_points``. Once a Newton step
-    would move the surface point by less than ``tol`` [mm], the step's model
-    decrease of f is taken and the iteration stops (the error left is of
-    third order in the step); Gauss-Newton steps iterate down to 1e-9 mm.
-    Where the face curves away from p (the Hessian is not positive definite,
-    beyond a centre of curvature) an accepted Gauss-Newton step is doubled
-    while that keeps decreasing f. At most ``max_iter`` steps.
-
-    Returns
-    -------
-    u, v, f : float
-        The foot's parameters and the squared distance [mm^2].
-    """
-    ev = work[2]
-    _surface_eval(cp, tu, tv, u, v, work)
-    dx, dy, dz = ev[0, 0] - px, ev[0, 1] - py, ev[0, 2] - pz
-    f = dx * dx + dy * dy + dz * dz
-    for _ in range(max_iter):
-        sux, suy, suz = ev[1, 0], ev[1, 1], ev[1, 2]
-        svx, svy, svz = ev[2, 0], ev[2, 1], ev[2, 2]
-        gu = sux * dx + suy * dy + suz * dz
-        gv = svx * dx + svy * dy + svz * dz
-        a11 = sux * sux + suy * suy + suz * suz
-        a12 = sux * svx + suy * svy + suz * svz
-        a22 = svx * svx + svy * svy + svz * svz
-        h11 = a11 + ev[3, 0] * dx + ev[3, 1] * dy + ev[3, 2] * dz
-        h12 = a12 + ev[4, 0] * dx + ev[4, 1] * dy + ev[4, 2] * dz
-        h22 = a22 + ev[5, 0] * dx + ev[5, 1] * dy + ev[5, 2] * dz
-        fix_u = (u <= 0.0 and gu > 0.0) or (u >= 1.0 and gu < 0.0)
-        fix_v = (v <= 0.0 and gv > 0.0) or (v >= 1.0 and gv < 0.0)
-        if fix_u and fix_v:
-            break
-        # Newton on the free parameters where its Hessian is positive definite, else Gauss-Newton
-        newton = True
-        if fix_u:
-            if h22 <= 1e-9 * a22:
-                h22 = a22
-                newton = False
-            du, dv = 0.0, gv / max(h22, 1e-300)
-        elif fix_v:
-            if h11 <= 1e-9 * a11:
-                h11 = a11
-                newton = False
-            du, dv = gu / max(h11, 1e-300), 0.0
-        else:
-            if h11 <= 0.0 or h22 <= 0.0 or h11 * h22 - h12 * h12 <= 1e-9 * (a11 * a22):
-                h11, h12, h22 = a11, a12, a22
-                newton = False
-            det = max(h11 * h22 - h12 * h12, 1e-300)
-            du = (h22 * gu - h12 * gv) / det
-            dv = (h11 * gv - h12 * gu) / det
-        big = max(abs(du), abs(dv))
-        if big > 0.1:
-            du *= 0.1 / big
-            dv *= 0.1 / big
-        mx = sux * du + svx * dv
-        my = suy * du + svy * dv
-        mz = suz * du + svz * dv
-        move2 = mx * mx + my * my + mz * mz
-        if move2 < 1e-18:
-            break
-        if newton and move2 < tol * tol and 0.0 <= u - du <= 1.0 and 0.0 <= v - dv <= 1.0:
-            f = max(f - (gu * du + gv * dv), 0.0)  # Newton model: f(x - H^-1 g) = f - g.H^-1 g
-            u -= du
-            v -= dv
-            break
-        scale = 1.0
-        accepted = False
-        for _ in range(30):
-            un = min(max(u - scale * du, 0.0), 1.0)
-            vn = min(max(v - scale * dv, 0.0), 1.0)
-            _surface_eval(cp, tu, tv, un, vn, work)
-            ex, ey, ez = ev[0, 0] - px, ev[0, 1] - py, ev[0, 2] - pz
-            fn = ex * ex + ey * ey + ez * ez
-            if fn <= f:
-                accepted = True
-                break
-            scale *= 0.5
-        if not accepted:
-            break
-        if not newton and scale == 1.0:
-            # the Gauss-Newton model underestimates the step where the face curves away: expand
-            tried = False
-            while 2.0 * scale * max(abs(du), abs(dv)) <= 0.1:
-                tried = True
-                uc = min(max(u - 2.0 * scale * du, 0.0), 1.0)
-                vc = min(max(v - 2.0 * scale * dv, 0.0), 1.0)
-                _surface_eval(cp, tu, tv, uc, vc, work)
-                cx, cy, cz = ev[0, 0] - px, ev[0, 1] - py, ev[0, 2] - pz
-                fc = cx * cx + cy * cy + cz * cz
-                if fc >= fn:
-                    break
-                un, vn, fn, ex, ey, ez = uc, vc, fc, cx, cy, cz
-                scale *= 2.0
-            if tried:
-                _surface_eval(cp, tu, tv, un, vn, work)    # derivatives at the accepted point
-        moved = max(abs(un - u), abs(vn - v))
-        u, v, f = un, vn, fn
-        dx, dy, dz = ex, ey, ez
-        if moved < 1e-14:
-            break
-    return u, v, f
-
-
-@numba.njit(cache=True)
-def _project_edge(cp, tu, tv, px, py, pz, u, v, work, tol, max_iter):
-    """``_project``, restarted from inside when it ends on the face's boundary.
-
-    A closest point on an edge of the parameter square can be a constrained
-    local minimum while the global one lies just inside (around the leading
-    and trailing edge noses); the restart from 0.03 inside the edge finds it.
-    """
-    u, v, f = _project(cp, tu, tv, px, py, pz, u, v, work, tol, max_iter)
-    if f > 0.0 and (u <= 0.0 or u >= 1.0 or v <= 0.0 or v >= 1.0):
-        u2, v2, f2 = _project(cp, tu, tv, px, py, pz, min(max(u, 0.03), 0.97), min(max(v, 0.03), 0.97),
-                              work, tol, max_iter)
-        if f2 < f:
-            return u2, v2, f2
-    return u, v, f
-
-
-@numba.njit(cache=True)
-def _uv_at(cp, tu, tv, x0, r0, u, v, work):
-    """Face parameters at a meridional position, as ``BladeFace.uv_at`` (numba).
-
-    Newton on ``(x(u, v), r(u, v)) = (x0, r0)`` with steps damped to 0.25 and
-    clipped to [0, 1].
-
-    Returns
-    -------
-    u, v : float
-    inside : bool
-        (x0, r0) lies in the face's meridional footprint (residual < 1e-7 mm).
-    theta : float
-        Angle of the face point [rad].
-    """
-    ev = work[2]
-    for _ in range(30):
-        _surface_eval(cp, tu, tv, u, v, work)
-        r = math.hypot(ev[0, 1], ev[0, 2])
-        r_u = (ev[0, 1] * ev[1, 1] + ev[0, 2] * ev[1, 2]) / r
-        r_v = (ev[0, 1] * ev[2, 1] + ev[0, 2] * ev[2, 2]) / r
-        res0 = ev[0, 0] - x0
-        res1 = r - r0
-        j00, j01, j10, j11 = ev[1, 0], ev[2, 0], r_u, r_v
-        det = j00 * j11 - j01 * j10
-        if abs(det) < 1e-300:
-            det = 1e-300
-        du = (j11 * res0 - j01 * res1) / det
-        dv = (-j10 * res0 + j00 * res1) / det
-        big = max(abs(du), abs(dv))
-        if big > 0.25:
-            du *= 0.25 / big
-            dv *= 0.25 / big
-        un = min(max(u - du, 0.0), 1.0)
-        vn = min(max(v - dv, 0.0), 1.0)
-        stalled = un == u and vn == v
-        u, v = un, vn
-        if max(abs(du), abs(dv)) < 1e-11 or stalled:
-            break
-    _surface_eval(cp, tu, tv, u, v, work)
-    r = math.hypot(ev[0, 1], ev[0, 2])
-    resid = math.hypot(ev[0, 0] - x0, r - r0)
-    return u, v, resid < 1e-7, math.atan2(ev[0, 2], ev[0, 1])
 
 
 # ===========================================================================
@@ -541,11 +218,11 @@ def _fill_lines(cp_s, tu_s, tv_s, cp_p, tu_p, tv_p, xs, rs, seeds):
     inside = np.empty((n, 2), dtype=np.bool_)
     n_chunk = (n + 1023) // 1024
     for chunk in range(n_chunk):
-        work = _new_work()
+        work = new_work()
         for k in range(chunk * 1024, min(n, chunk * 1024 + 1024)):
-            u, v, in_s, th = _uv_at(cp_s, tu_s, tv_s, xs[k], rs[k], seeds[k, 0, 0], seeds[k, 0, 1], work)
+            u, v, in_s, th = uv_at(cp_s, tu_s, tv_s, xs[k], rs[k], seeds[k, 0, 0], seeds[k, 0, 1], work)
             uv[k, 0, 0], uv[k, 0, 1], theta[k, 0] = u, v, th
-            u, v, in_p, th = _uv_at(cp_p, tu_p, tv_p, xs[k], rs[k], seeds[k, 1, 0], seeds[k, 1, 1], work)
+            u, v, in_p, th = uv_at(cp_p, tu_p, tv_p, xs[k], rs[k], seeds[k, 1, 0], seeds[k, 1, 1], work)
             uv[k, 1, 0], uv[k, 1, 1], theta[k, 1] = u, v, th
             inside[k, 0] = in_s
             inside[k, 1] = in_p
@@ -592,7 +269,7 @@ def _fill_coarse(cp_s, tu_s, tv_s, cp_p, tu_p, tv_p, fp, ip, line_theta, line_in
     feet_xyz = np.empty((ncx, ncr, nct, 2, 3))
     pitch = fp[_PITCH]
     for cx in numba.prange(ncx):
-        work = _new_work()
+        work = new_work()
         ev = work[2]
         x = fp[_X0] + cx * C * fp[_HX]
         for cr in range(ncr):
@@ -606,11 +283,11 @@ def _fill_coarse(cp_s, tu_s, tv_s, cp_p, tu_p, tv_p, fp, ip, line_theta, line_in
                     mi = 8 if far[cx, cr, ct, face] else 80
                     px, py, pz = x, r * math.cos(th), r * math.sin(th)
                     if face == 0:
-                        u, v, f = _project_edge(cp_s, tu_s, tv_s, px, py, pz, u0, v0, work, _NEWTON_TOL, mi)
-                        _surface_eval(cp_s, tu_s, tv_s, u, v, work)
+                        u, v, f = project_edge(cp_s, tu_s, tv_s, px, py, pz, u0, v0, work, _NEWTON_TOL, mi)
+                        surface_eval(cp_s, tu_s, tv_s, u, v, work)
                     else:
-                        u, v, f = _project_edge(cp_p, tu_p, tv_p, px, py, pz, u0, v0, work, _NEWTON_TOL, mi)
-                        _surface_eval(cp_p, tu_p, tv_p, u, v, work)
+                        u, v, f = project_edge(cp_p, tu_p, tv_p, px, py, pz, u0, v0, work, _NEWTON_TOL, mi)
+                        surface_eval(cp_p, tu_p, tv_p, u, v, work)
                     d = math.sqrt(f)
                     values[cx, cr, ct, face] = -d if behind else d
                     feet_uv[cx, cr, ct, face, 0] = u
@@ -737,7 +414,7 @@ def _solve_node(cp, tu, tv, px, py, pz, su, sv, coarse_uv, face, cx, cr, ct, kx,
     """
     if su != su:
         su, sv = coarse_uv[kx, kr, kt, face, 0], coarse_uv[kx, kr, kt, face, 1]
-    u, v, f = _project(cp, tu, tv, px, py, pz, su, sv, work, _NEWTON_TOL, 80)
+    u, v, f = project(cp, tu, tv, px, py, pz, su, sv, work, _NEWTON_TOL, 80)
     extra = 0
     edge = _on_edge(u, v)
     for a in range(8 if amb else 1):
@@ -759,7 +436,7 @@ def _solve_node(cp, tu, tv, px, py, pz, su, sv, coarse_uv, face, cx, cr, ct, kx,
                 break
         if seen:
             continue
-        u2, v2, f2 = _project(cp, tu, tv, px, py, pz, au, av, work, _NEWTON_TOL, 80)
+        u2, v2, f2 = project(cp, tu, tv, px, py, pz, au, av, work, _NEWTON_TOL, 80)
         extra += 1
         if f2 < f:
             u, v, f = u2, v2, f2
@@ -790,7 +467,7 @@ def _fill_fine(cp_s, tu_s, tv_s, cp_p, tu_p, tv_p, fp, ip, line_theta, line_insi
     solved_x = np.zeros(nx, dtype=np.int64)
     rechecked_x = np.zeros(nx, dtype=np.int64)
     for ix in numba.prange(nx):
-        work = _new_work()
+        work = new_work()
         solved = 0
         rechecked = 0
         x = fp[_X0] + ix * fp[_HX]
@@ -1044,7 +721,7 @@ def _wall_angle(face, x, rho, th, fp, ip, slow, work):
             # and then the footprint test depends on the start
             xr_uv = slow[18]
             j_best = _nearest_start(face, x, rho, slow[17], slow[19], slow[20], slow[21], slow[22])
-            _, _, in_face, th_face = _uv_at(cp, tu, tv, x, rho, xr_uv[face, j_best, 0], xr_uv[face, j_best, 1],
+            _, _, in_face, th_face = uv_at(cp, tu, tv, x, rho, xr_uv[face, j_best, 0], xr_uv[face, j_best, 1],
                                             work)
     return in_face, th_face
 
@@ -1085,7 +762,7 @@ def _exact_blade_uv(face, x, rho, th, fp, ip, slow, work):
     u, v, f, _ = _solve_node(cp, tu, tv, px, py, pz, np.nan, np.nan, coarse_uv, face, cx, cr, ct, kx, kr, kt, amb,
                              fp[_SCALE + 2 * face], fp[_SCALE + 2 * face + 1], fp[_JUMP], work)
     if _on_edge(u, v) != 0:
-        u2, v2, f2 = _project(cp, tu, tv, px, py, pz, min(max(u, 0.03), 0.97), min(max(v, 0.03), 0.97), work,
+        u2, v2, f2 = project(cp, tu, tv, px, py, pz, min(max(u, 0.03), 0.97), min(max(v, 0.03), 0.97), work,
                               _NEWTON_TOL, 80)
         if f2 < f:
             u, v, f = u2, v2, f2
@@ -1093,7 +770,7 @@ def _exact_blade_uv(face, x, rho, th, fp, ip, slow, work):
         # beyond the band the coarse nodes' closest points can lie on another local minimum: a grid of starts
         for i in range(5):
             for j in range(5):
-                u2, v2, f2 = _project_edge(cp, tu, tv, px, py, pz, 0.1 + 0.2 * i, 0.1 + 0.2 * j, work,
+                u2, v2, f2 = project_edge(cp, tu, tv, px, py, pz, 0.1 + 0.2 * i, 0.1 + 0.2 * j, work,
                                            _NEWTON_TOL, 80)
                 if f2 < f:
                     u, v, f = u2, v2, f2
@@ -1252,7 +929,7 @@ def _points_kernel(points, channel_angle, mode, flat, hs, fpt, ipt, fp, ip, slow
     """
     n = points.shape[0]
     out = np.zeros((n, 4))
-    work = _new_work()
+    work = new_work()
     for k in range(n):
         x, y, z = points[k, 0], points[k, 1], points[k, 2]
         if mode == 1:
@@ -1286,7 +963,7 @@ def _pose_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow)
     n_pose, n_pt = poses.shape[0], points.shape[0]
     best = np.full((n_pose, 4), np.inf)
     arg = np.zeros((n_pose, 4), dtype=np.int64)
-    work = _new_work()
+    work = new_work()
     for q0 in range(0, n_pose, 64):
         q1 = min(q0 + 64, n_pose)
         for k0 in range(0, n_pt, 128):
@@ -1350,7 +1027,7 @@ def _exact_pose_kernel(poses, points, channel_angle, near_bound, far_bound, flat
     solved = np.zeros(n_pose, dtype=np.int64)
     world = np.empty((n_pt, 3))
     low = np.empty((n_pt, 4))
-    work = _new_work()
+    work = new_work()
     nx, nr, nt, nhx, nhr = ip[_NX], ip[_NR], ip[_NT], ip[_NHX], ip[_NHR]
     sure_near = ACCURATE_WITHIN - far_bound       # |value| below this: |exact| <= 2 mm
     for q in range(n_pose):
@@ -1428,7 +1105,7 @@ def _behind_kernel(points, channel_angle, fp, ip, slow):
     """(n, 2) bool: ``_behind_at`` for both walls."""
     n = points.shape[0]
     out = np.zeros((n, 2), dtype=np.bool_)
-    work = _new_work()
+    work = new_work()
     for k in range(n):
         for face in range(2):
             out[k, face] = _behind_at(face, points[k, 0], points[k, 1], points[k, 2], channel_angle, fp, ip, slow,
@@ -1442,7 +1119,7 @@ def _exact_blade_feet(points, channel_angle, fp, ip, slow):
     n = points.shape[0]
     dist = np.empty((n, 2))
     uv = np.empty((n, 2, 2))
-    work = _new_work()
+    work = new_work()
     for k in range(n):
         x, y, z = points[k, 0], points[k, 1], points[k, 2]
         rho = math.sqrt(y * y + z * z)
@@ -1620,7 +1297,7 @@ def _min_search(surface, poses, V, c_rep, c_rad, c_off, c_left, c_right, s_mid, 
     number of exact evaluations and the keys ``t * m + k`` of every pair evaluated.
     """
     m = V.shape[0]
-    work = _new_work()
+    work = new_work()
     done = Dict.empty(key_type=types.int64, value_type=types.float64)
     best, best_key = np.inf, -1
     for i in range(seed_t.shape[0]):
@@ -1692,7 +1369,7 @@ def _anchor_sides(poses, V, anchors, channel_angle, flat, hs, fpt, ipt, fp, ip, 
     m = V.shape[0]
     out = np.zeros((anchors.shape[0], m, 2), dtype=np.bool_)
     for i in numba.prange(anchors.shape[0]):
-        work = _new_work()
+        work = new_work()
         for k in range(m):
             x, y, z = _place(poses, V, anchors[i], k)
             out[i, k, 0], out[i, k, 1] = _sides(x, y, z, channel_angle, flat, hs, fpt, ipt, fp, ip, slow, work)
@@ -1710,7 +1387,7 @@ def _sweep_sides(poses, V, face, vertex, first, last, channel_angle, flat, hs, f
         start[i + 1] = start[i] + max(last[i] - first[i], 0)
     out = np.zeros(start[-1], dtype=np.bool_)
     for i in numba.prange(face.shape[0]):
-        work = _new_work()
+        work = new_work()
         for t in range(first[i], last[i]):
             x, y, z = _place(poses, V, t, vertex[i])
             out[start[i] + t - first[i]] = _sides(x, y, z, channel_angle, flat, hs, fpt, ipt, fp, ip, slow,
@@ -1723,7 +1400,7 @@ def _exact_pairs(poses, V, t, k, surface, channel_angle, fp, ip, slow):
     """Exact signed distances of the given (sample, vertex, surface) triples."""
     out = np.empty(t.shape[0])
     for i in numba.prange(t.shape[0]):
-        work = _new_work()
+        work = new_work()
         x, y, z = _place(poses, V, t[i], k[i])
         out[i] = _exact_at(surface[i], x, y, z, channel_angle, fp, ip, slow, work)
     return out
@@ -2315,7 +1992,7 @@ class FastChannelField:
 
         ``_fast_point(x, y, z, flat, hs, fpt, ipt)`` answers from the tables,
         ``_exact_at(s, x, y, z, channel_angle, fp, ip, slow, work)`` and
-        ``_behind_at(face, ...)`` solve exactly (``work = _new_work()``).
+        ``_behind_at(face, ...)`` solve exactly (``work = new_work()``).
         """
         return (float(channel) * self.blisk.pitch,) + self._kernel_args(channel)
 

@@ -243,6 +243,7 @@ class SetDesigner:
         self.base = replace(base, circumferential_reduction=0.0, radial_reduction=0.0, reduction_side="both",
                             axial_range=None)
         self._designs = {}
+        self._walls = {}                 # the offset walls, shared by designs that differ in h only
         margin = base.discharge_gap - self.options.tolerance
         if margin <= 0:
             raise EdmError(ErrorCode.INVALID_REQUEST,
@@ -349,7 +350,7 @@ class SetDesigner:
         """The piece's electrode of a design (in a list, as plan_channel takes it), designed once."""
         key = (design, electrode_id)
         if key not in self._designs:
-            self._designs[key] = design_electrodes(self.blisk, design, only=electrode_id)
+            self._designs[key] = design_electrodes(self.blisk, design, only=electrode_id, walls_cache=self._walls)
         return self._designs[key]
 
     def _bisect(self, lo, hi, resolution, attempt, best):
