@@ -84,12 +84,9 @@ def default_field(default_geometry, field_cache):
     """The default blisk's distance field at the planner's spacing (0.1 mm), from the run's field cache."""
     from edm_planner.interference.fast import FastChannelField
 
-    import fcntl
-
     g = default_geometry
-    with open(pathlib.Path(field_cache) / "default_field.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)          # one xdist worker builds it, the other loads it
-        return FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache, cache_key=g.geometry_id)
+    # one xdist worker builds it, the other waits for the field's build lock and loads it
+    return FastChannelField(g.blisk, spacing=0.1, cache_dir=field_cache, cache_key=g.geometry_id)
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -334,3 +334,38 @@ def test_cache_of_another_geometry_is_not_used(default, rotor37, tmp_path):
     other = coarse_field(rotor37.blisk, tmp_path, "same-key")
     assert other.build_seconds > 0
     assert_agrees(other, other.error_sample_points(100, seed=81))
+
+
+_BUILD_ONE = """
+import json, pathlib, sys, time
+from edm_planner.geometry.loader import load_geometry
+from edm_planner.interference.fast import FastChannelField
+cache, go = sys.argv[1], pathlib.Path(sys.argv[2])
+g = load_geometry(sys.argv[3])
+while not go.exists():          # both processes ask for the field at the same moment
+    time.sleep(0.01)
+f = FastChannelField(g.blisk, spacing=0.6, cache_dir=cache, cache_key=g.geometry_id, error_samples=300)
+print(json.dumps({"built": f.build_seconds > 0, "bound": f.error_bound}))
+"""
+
+
+def test_two_processes_asking_for_one_field_build_it_once(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    from conftest import CONFIG
+
+    go = tmp_path / "go"
+    procs = [subprocess.Popen([sys.executable, "-c", _BUILD_ONE, str(tmp_path / "cache"), str(go),
+                               str(CONFIG / "default_blisk.yaml")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True) for _ in range(2)]
+    go.touch()
+    results = []
+    for p in procs:
+        out, err = p.communicate(timeout=600)
+        assert p.returncode == 0, err[-2000:]
+        results.append(json.loads(out.strip().splitlines()[-1]))
+    assert sorted(r["built"] for r in results) == [False, True], results      # one built, the other loaded
+    assert results[0]["bound"] == results[1]["bound"]
+    assert len(list((tmp_path / "cache").glob("*.npz"))) == 1

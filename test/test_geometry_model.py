@@ -37,7 +37,7 @@ from edm_planner.geometry.blisk import Blisk
 from edm_planner.geometry.centerline import channel_centerline
 from edm_planner.geometry.electrode import ElectrodeDesign, design_electrodes
 from edm_planner.geometry.frames import cartesian_to_cylindrical, cylindrical_to_cartesian, rotation_about_x
-from edm_planner.geometry.loader import load_geometry
+from edm_planner.geometry.loader import GeometryMemo, load_geometry
 from edm_planner.geometry.readers import read_nasa_table, read_sections_csv
 
 CONFIG = pathlib.Path(__file__).resolve().parent.parent / "config"
@@ -294,6 +294,34 @@ def test_geometry_id_changes_with_one_byte_of_a_data_file(mesh_geo, rotor37, tmp
     assert text.count(b"Table IV") == 1
     table.write_bytes(text.replace(b"Table IV", b"Table IW"))
     assert load_geometry(tmp_path / "rotor37.yaml").geometry_id != rotor37.geometry_id
+
+
+def test_memo_answers_unchanged_content_and_rebuilds_on_any_changed_byte(mesh_geo, tmp_path):
+    cfg = tmp_path / "cfg"
+    (cfg / "mesh_blisk").mkdir(parents=True)
+    shutil.copy(MESH_YAML, cfg / "mesh_blisk.yaml")
+    stl = cfg / "mesh_blisk" / "blade.stl"
+    shutil.copy(MESH_STL, stl)
+    memo = GeometryMemo()
+    first = load_geometry(cfg / "mesh_blisk.yaml", memo=memo)
+    assert first.geometry_id == mesh_geo.geometry_id
+    assert load_geometry(cfg / "mesh_blisk.yaml", allowed_dirs=[cfg], memo=memo) is first     # not built again
+    inline = load_geometry(text=MESH_YAML.read_text(), base_dir=cfg, memo=memo)
+    assert inline.blisk is first.blisk and inline.source == "inline YAML"
+    # one byte of the STL header: a new geometry, built
+    data = bytearray(stl.read_bytes())
+    data[7] ^= 0x41
+    stl.write_bytes(bytes(data))
+    changed = load_geometry(cfg / "mesh_blisk.yaml", memo=memo)
+    assert changed is not first and changed.geometry_id != first.geometry_id
+    # the sandbox holds for remembered geometries too: the data file now behind a symlink out of it
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    stl.rename(outside / "blade.stl")
+    os.symlink(outside / "blade.stl", stl)
+    assert load_geometry(cfg / "mesh_blisk.yaml", memo=memo) is changed
+    expect_error(GeometryFileError, "outside the allowed", path=cfg / "mesh_blisk.yaml", allowed_dirs=[cfg],
+                 memo=memo)
 
 
 # ------------------------------------------------------------ serialisation

@@ -16,12 +16,13 @@ YAML schema (mm, rad; file paths relative to the YAML's directory)::
 A document holding only the blisk keys loads with the default electrode design.
 """
 
+import collections
 import hashlib
 import json
 import logging
 import os
 import pathlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import yaml
@@ -231,7 +232,46 @@ def build_geometry(doc, files, source=""):
                           design_given=doc.get("electrode") is not None)
 
 
-def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None):
+class GeometryMemo:
+    """Geometries loaded before, answered again while their content is unchanged.
+
+    Keyed by the parsed document and the directory its file names resolve in;
+    a hit re-reads and re-hashes every file the geometry was built from
+    (through the same sandbox), so an edited profile or mesh file, or one now
+    outside the allowed directories, is never answered from memory. Holds the
+    ``size`` geometries used last.
+    """
+
+    def __init__(self, size=8):
+        self.size = int(size)
+        self._entries = collections.OrderedDict()     # key -> (geometry, [(name, sha256)])
+
+    @staticmethod
+    def _key(doc, files):
+        return hashlib.sha256(json.dumps([doc, str(files.base_dir)], sort_keys=True, default=str).encode()).hexdigest()
+
+    def lookup(self, doc, files, where):
+        """The remembered geometry of ``doc`` if every file it read is unchanged, else None."""
+        key = self._key(doc, files)
+        entry = self._entries.get(key)
+        if entry is None:
+            return None
+        geometry, hashes = entry
+        files.hashes.clear()
+        for name, _ in hashes:
+            files.resolve(name, "geometry file")          # the sandbox applies as on a first load
+        if files.hashes != hashes:
+            return None
+        self._entries.move_to_end(key)
+        return geometry if geometry.source == where else replace(geometry, source=where)
+
+    def remember(self, doc, files, geometry):
+        self._entries[self._key(doc, files)] = (geometry, list(files.hashes))
+        while len(self._entries) > self.size:
+            self._entries.popitem(last=False)
+
+
+def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None, memo=None):
     """Load a blisk geometry from a YAML file or inline YAML text.
 
     Parameters
@@ -246,6 +286,9 @@ def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None):
     base_dir : path, optional
         Where relative names in inline YAML resolve (default: the first allowed
         directory, else the working directory).
+    memo : GeometryMemo, optional
+        Answers a document whose content (and every file's) is unchanged
+        without building it again.
 
     Returns
     -------
@@ -272,7 +315,15 @@ def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None):
         files = FileAccess(base, allowed_dirs)
         where = "inline YAML"
     doc = parse_document(text, where)
+    if memo is not None:
+        geometry = memo.lookup(doc, files, where)
+        if geometry is not None:
+            _log.info("loaded %s: unchanged content, id %s (from memory)", where, geometry.geometry_id[:12])
+            return geometry
+        files.hashes.clear()
     geometry = build_geometry(doc, files, source=where)
+    if memo is not None:
+        memo.remember(doc, files, geometry)
     _log.info("loaded %s: %d blades, %s blade, id %s", where, geometry.blisk.blade_count,
               geometry.blisk.source, geometry.geometry_id[:12])
     return geometry

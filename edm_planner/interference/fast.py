@@ -49,6 +49,8 @@ bounding box, whichever is larger), never larger than the truth.
 Units: mm, rad. Frame W: X the blisk axis, theta = atan2(z, y).
 """
 
+import contextlib
+import fcntl
 import hashlib
 import heapq
 import json
@@ -1446,6 +1448,36 @@ def _profile_arrays(profile):
     return xb, np.ascontiguousarray(interp.c, dtype=np.float64), bounds
 
 
+@contextlib.contextmanager
+def _build_lock(path):
+    """Exclusive lock of a field's cache file while it is built (``<cache>.lock``, flock); none without a cache.
+
+    The lock is the kernel's (released when its holder exits, also by kill -9),
+    so a crashed builder never blocks the next one. Where the lock file cannot
+    be made (a read-only cache directory) the field is built unlocked.
+    """
+    if path is None:
+        yield
+        return
+    lock = path.with_name(path.name + ".lock")
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:
+        _log.warning("fast field: no build lock %s (%s); building without it", lock, exc)
+        yield
+        return
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            _log.info("fast field: another process is building %s; waiting for it", path.name)
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)                     # closing releases the lock
+
+
 def _axis(lo, hi, step, multiple):
     """Node count (a multiple of ``multiple`` intervals plus one) and spacing <= step covering [lo, hi]."""
     m = max(multiple, int(math.ceil((hi - lo) / step / multiple - 1e-9)) * multiple)
@@ -1530,14 +1562,20 @@ class FastChannelField:
         if path is not None and self._load(path):
             _log.info("fast field: loaded %s", path)
             return
-        t = time.perf_counter()
-        self._build()
-        self._measure_error(error_samples)
-        self.build_seconds = time.perf_counter() - t
-        _log.info("fast field: built in %.2f s, grid %s, error bound %.2e mm",
-                  self.build_seconds, self._grid.shape[:3], self.error_bound)
-        if path is not None:
-            self._save(path)
+        # one build per field and machine: processes that need the same field at once (the planner and
+        # the checker starting together, the set designer's workers) wait for the one building it
+        with _build_lock(path):
+            if path is not None and self._load(path):
+                _log.info("fast field: loaded %s (built by another process meanwhile)", path)
+                return
+            t = time.perf_counter()
+            self._build()
+            self._measure_error(error_samples)
+            self.build_seconds = time.perf_counter() - t
+            _log.info("fast field: built in %.2f s, grid %s, error bound %.2e mm",
+                      self.build_seconds, self._grid.shape[:3], self.error_bound)
+            if path is not None:
+                self._save(path)
 
     # -- building ------------------------------------------------------------
     def _geometry_fingerprint(self):

@@ -36,7 +36,7 @@ from visualization_msgs.msg import MarkerArray
 
 from ..errors import EdmError, ErrorCode
 from ..geometry.blisk import CHANNEL_SURFACES
-from ..geometry.loader import load_geometry
+from ..geometry.loader import GeometryMemo, load_geometry
 from .runtime import spin_node
 from .conversions import error_code, matrix_to_pose, mesh_marker, mesh_to_msg, summary_to_msg
 
@@ -70,6 +70,7 @@ class GeometryLoaderNode(Node):
                                ParameterDescriptor(description="published surface mesh edge length [mm]"))
         self.add_on_set_parameters_callback(self._check_parameters)
         self.geometries = {}
+        self._memo = GeometryMemo()          # an unchanged file is answered without building it again
         self._lock = threading.Lock()
         self.geometry_pub = self.create_publisher(BliskGeometry, "geometry", LATCHED)
         self.marker_pub = self.create_publisher(MarkerArray, "geometry_markers", LATCHED)
@@ -112,7 +113,8 @@ class GeometryLoaderNode(Node):
         if path is not None and not os.path.isabs(path):
             path = os.path.join(allowed[0], path) if allowed else path
         try:
-            geometry = load_geometry(path=path, text=text, allowed_dirs=allowed if sandboxed else None)
+            geometry = load_geometry(path=path, text=text, allowed_dirs=allowed if sandboxed else None,
+                                     memo=self._memo)
             summary = geometry.summary()
         except EdmError as exc:
             return self._fail(response, exc.code, exc.message)
