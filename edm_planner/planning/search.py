@@ -25,12 +25,12 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 
 import numpy as np
-from scipy.optimize import linprog
 
 from ..errors import ErrorCode
 from ..interference import SURFACES
 from ..machine.kinematics import state_poses
 from .ga import GAOptions, NoFeasibleStart, minimize_ga
+from .lp import DenseLp
 from .objective import Weights, margin, smoothness
 
 _log = logging.getLogger(__name__)
@@ -357,12 +357,14 @@ class ExitSearch:
         a_eq[:, :k] = np.eye(k)
         a_eq[:, k:2 * k] = -np.eye(k)
         a_eq[:, 2 * k:3 * k] = np.eye(k)
-        bounds = [(lo[j], hi[j]) for j in range(k)] + [(0, None)] * (2 * k) + \
-                 [(None, None if not np.isfinite(cap) else cap)]
-        res = linprog(c, A_ub=a_ub, b_ub=s0, A_eq=a_eq, b_eq=prev - x0, bounds=bounds, method="highs")
-        if res.status != 0:
+        col_lo = np.concatenate([lo, np.zeros(2 * k), [-np.inf]])
+        col_hi = np.concatenate([hi, np.full(2 * k, np.inf), [cap]])
+        if getattr(self, "_lp", None) is None:
+            self._lp = DenseLp()                           # one HiGHS instance for all the search's LPs
+        x = self._lp.solve(c, a_ub, s0, a_eq, prev - x0, col_lo, col_hi)
+        if x is None:
             return None
-        return x0 + res.x[:k], float(res.x[-1])
+        return x0 + x[:k], float(x[-1])
 
     def _solve_node_ga(self, state, prev_incr, step, frame):
         rng = self._rng
