@@ -257,6 +257,23 @@ def test_continuous_bound_is_half_the_largest_step(blisk_setup):
     assert report.pose_count == 2
 
 
+def test_the_proof_shared_out_among_processes_is_the_proof_of_one(blisk_setup):
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    g, samples, _ = blisk_setup
+    e = g.electrodes[0]
+    poses = np.array([translation(x=0.3 * k, y=0.02 * k) @ e.final_pose for k in range(6, -1, -1)])
+    sweeps = [Sweep.from_electrode(e, poses)]
+    one = simulate_removal(g.blisk, sweeps, g.design.discharge_gap, samples=samples)
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
+        shared = simulate_removal(g.blisk, sweeps, g.design.discharge_gap, samples=samples, executor=pool, parts=2)
+    for name, s in one.surfaces.items():
+        np.testing.assert_array_equal(shared.surfaces[name].stock, s.stock)
+        assert shared.surfaces[name].area_fraction_above_tolerance == s.area_fraction_above_tolerance
+    assert shared.queries > 0
+
+
 def test_stock_maps_and_vertex_colours(blisk_setup, tmp_path):
     g, _, report = blisk_setup
     path = plot_stock_maps(report, tmp_path / "stock.png")

@@ -388,9 +388,11 @@ class SetDesigner:
         if self._wall_samples is None:                # the same walls for every candidate
             from .removal import wall_samples
             self._wall_samples = wall_samples(self.blisk, self.options.removal_spacing)
+        pool = self._workers_pool()               # the sizing workers share out the wall samples
         report = simulate_removal(self.blisk, self.sweeps(candidate), self.base.discharge_gap,
                                   tolerance=self.options.tolerance, samples=self._wall_samples,
-                                  reference=[(ideal.mesh.vertices, ideal.mesh.faces, ideal.final_pose[None])])
+                                  reference=[(ideal.mesh.vertices, ideal.mesh.faces, ideal.final_pose[None])],
+                                  executor=pool, parts=self.workers if pool is not None else 1)
         candidate.removal = report
         return report
 

@@ -693,8 +693,34 @@ class RemovalReport:
         }
 
 
+def _stock_in_parts(points, sweeps, gap, executor, parts, stats):
+    """``stock_at_points`` over interleaved parts of the points in an executor's processes, joined.
+
+    Every point's minimum is its own (the pruning is exact per point), so the
+    parts give the same stock as one call; interleaving keeps their work even.
+    """
+    if executor is None or parts < 2 or len(points) < 1000 * parts:
+        return stock_at_points(points, sweeps, gap, stats=stats)
+    sweeps = [(sw.vertices, sw.faces, sw.poses) for sw in sweeps]
+    owner = np.arange(len(points)) % parts
+    futures = [executor.submit(_stock_part, points[owner == i], sweeps, gap) for i in range(parts)]
+    stock, which = np.empty(len(points)), np.empty((len(points), 2), dtype=np.int64)
+    for i, future in enumerate(futures):
+        part_stock, part_which, part_stats = future.result()
+        stock[owner == i], which[owner == i] = part_stock, part_which
+        for key, value in part_stats.items():
+            stats[key] = stats.get(key, 0) + value
+    return stock, which
+
+
+def _stock_part(points, sweeps, gap):
+    stats = {}
+    stock, which = stock_at_points(points, sweeps, gap, stats=stats)
+    return stock, which, stats
+
+
 def simulate_removal(blisk, sweeps, gap, tolerance=REMOVAL.stock, spacing=REMOVAL.spacing, samples=None,
-                     reference=None):
+                     reference=None, executor=None, parts=1):
     """Stock left on the four surfaces of channel 0 after the given electrode sweeps.
 
     Parameters
@@ -714,6 +740,10 @@ def simulate_removal(blisk, sweeps, gap, tolerance=REMOVAL.stock, spacing=REMOVA
         The ideal electrode (the whole channel shrunk by the gap at its machining
         pose): its stock is the inherent one (concave corners keep a fillet of
         radius ``gap`` whatever the electrodes), reported beside the stock.
+    executor : concurrent.futures.Executor, optional
+        With ``parts`` > 1, the points are shared out among its processes in
+        that many interleaved parts (the same stock as one process).
+    parts : int
 
     Returns
     -------
@@ -726,7 +756,7 @@ def simulate_removal(blisk, sweeps, gap, tolerance=REMOVAL.stock, spacing=REMOVA
     valid = [samples[s].valid for s in names]
     points = np.vstack([samples[s].points[m] for s, m in zip(names, valid)])
     stats = {}
-    stock, which = stock_at_points(points, sweeps, gap, stats=stats)
+    stock, which = _stock_in_parts(points, sweeps, gap, executor, parts, stats)
     inherent = None
     if reference is not None:
         ref = [Sweep(np.asarray(v, dtype=np.float64), np.asarray(f), _poses(p)) for v, f, p in reference]
