@@ -24,7 +24,7 @@ import time
 from dataclasses import asdict, replace
 
 import numpy as np
-from scipy.interpolate import CubicSpline, make_smoothing_spline
+from scipy.interpolate import CubicSpline
 
 from ..errors import EdmError, ErrorCode
 from ..geometry.centerline import channel_centerline
@@ -35,6 +35,7 @@ from ..machine.kinematics import axis_poses, state_axes
 from .certify import PathCertifier
 from .plan import AXIS_NAMES, Plan, PlanMetrics, PlanOptions
 from .search import ExitSearch, SearchStatus
+from .smoothing import SmoothingBasis
 
 _log = logging.getLogger(__name__)
 
@@ -77,34 +78,16 @@ def fit_path(params, nodes, level):
     """
     values = nodes.copy()
     if level > 0 and len(params) >= 5:
+        basis = None
         for j in range(nodes.shape[1]):
             y = nodes[:, j]
             if np.abs(np.diff(y, 2)).max(initial=0.0) <= 1e-12 * max(np.abs(y).max(), 1.0):
                 continue                          # already straight (X along the X reference): nothing to smooth
-            gcv = make_smoothing_spline(params, y)
-            if level == 1.0:
-                values[:, j] = gcv(params)
-            else:                                 # scipy does not return its GCV weight: recover it
-                lam = _gcv_lambda(gcv, params, y)
-                values[:, j] = make_smoothing_spline(params, y, lam=lam * level)(params)
+            if basis is None:                     # one decomposition serves every axis
+                basis = SmoothingBasis(params)
+            values[:, j] = basis.fit(y, basis.gcv_weight(y) * level)
         values[-1] = nodes[-1]
     return CubicSpline(params, values, bc_type="not-a-knot")
-
-
-def _gcv_lambda(spline, params, y):
-    """The GCV weight scipy chose (not returned by make_smoothing_spline): bracket by residual."""
-    target = np.sum((spline(params) - y) ** 2)
-    lo, hi = 1e-12, 1e6
-    for _ in range(60):                                   # bisection in log space on the residual
-        mid = np.sqrt(lo * hi)
-        res = np.sum((make_smoothing_spline(params, y, lam=mid)(params) - y) ** 2)
-        if res < target:
-            lo = mid
-        else:
-            hi = mid
-        if hi / lo < 1.5:
-            break
-    return np.sqrt(lo * hi)
 
 
 def smoothness_figures(values):
