@@ -283,6 +283,38 @@ def test_points_outside_the_grid_get_lower_bounds(default, field, exact):
     assert (got[ahead, :2] > 0).all()
 
 
+def test_outside_the_grid_the_fast_path_gives_the_slow_paths_bound(default, field):
+    """An electrode on its way out (past the blades, turned beyond the grid's angles) is answered from the
+    tables with the general path's bound max(value at the nearest grid point - distance, box distance)."""
+    import numba
+
+    from edm_planner.geometry.spline_kernels import new_work
+
+    @numba.njit
+    def slow_path(points, flat, hs, fp, ip, slow):
+        out = np.empty((len(points), 4))
+        work = new_work()
+        for k in range(len(points)):
+            v = fast._slow_point(points[k, 0], points[k, 1], points[k, 2], 0.0, flat, hs, fp, ip, slow, work)
+            out[k, 0], out[k, 1], out[k, 2], out[k, 3] = v
+        return out
+
+    (gx0, gx1), (gr0, gr1), _ = field.grid_bounds
+    rng = np.random.default_rng(52)
+    n = 2000
+    x = np.concatenate([rng.uniform(gx0 - 10, gx0 + 3, n), rng.uniform(gx1 - 3, gx1 + 25, n)])
+    r = rng.uniform(gr0 - 2, gr1 + 2, 2 * n)
+    th = rng.uniform(-0.4, 0.35, 2 * n)
+    pts = cylindrical_to_cartesian(x, r, th)
+    answered = field.fast_path(pts)
+    outside = ~field.inside_grid(pts)
+    assert (answered & outside).sum() > n                # most points outside the grid need no slow path
+    flat, hs, _, _, fp, ip, slow = field._kernel_args(0)
+    ref = slow_path(pts, flat, hs, fp, ip, slow)
+    # the same bound, up to the fast path's float32 interpolation (micrometres x 1e-3)
+    np.testing.assert_allclose(field.clearances(pts), ref, rtol=0, atol=1e-5)
+
+
 def test_pose_clearances_is_clearances_then_minimum(default, field):
     e = default.electrodes[0]
     pts = electrode_points(e, step=13)

@@ -77,7 +77,7 @@ from .exact_points import ExactChannelDistance
 _log = logging.getLogger(__name__)
 
 #: format of the cached arrays; bump when the layout or the fill changes
-CACHE_VERSION = "edm_planner.fast_field/4"
+CACHE_VERSION = "edm_planner.fast_field/5"
 #: accuracy band the error bound is measured in [mm]
 ACCURATE_WITHIN = 2.0
 
@@ -785,8 +785,9 @@ def _fast_point(x, y, z, flat, hs, fp, ip):
     """The fast path: (suction, pressure, hub, shroud, ok); ok False sends the point to ``_slow_point``.
 
     Trilinear in the blade grid (float32, both walls with shared weights),
-    bilinear in the hub/shroud table. Not ok: outside either table, or a
-    cell marked for the exact solver (NaN). ``fp`` holds the cosine and sine
+    bilinear in the hub/shroud table; outside the blade grid the slow
+    path's lower bound from the nearest grid point. Not ok: outside the
+    hub/shroud table, or a cell marked for the exact solver (NaN). ``fp`` holds the cosine and sine
     of the grid's middle angle turned into the query's channel (``_CA``,
     ``_SA``).
     """
@@ -807,10 +808,23 @@ def _fast_point(x, y, z, flat, hs, fp, ip):
     hx = (x - fp[_HX0]) * fp[_IHHX]
     hr = (rho - fp[_HR0]) * fp[_IHHR]
     nan = np.nan
-    if not (0.0 <= gx < ip[_NX] - 1 and 0.0 <= gr < ip[_NR] - 1 and 0.0 <= gt < ip[_NT] - 1
-            and 0.0 <= hx < ip[_NHX] - 1 and 0.0 <= hr < ip[_NHR] - 1):
+    if not (0.0 <= hx < ip[_NHX] - 1 and 0.0 <= hr < ip[_NHR] - 1 and gx == gx and gr == gr and gt == gt):
         return nan, nan, nan, nan, False
-    ix, ir, it = int(gx), int(gr), int(gt)
+    # outside the blade grid (an electrode on its way in or out, past the blades or turned beyond the
+    # grid's angles): the slow path's bound max(value at the nearest grid point q - |p - q|, box
+    # distance), from the tables alone
+    gap = 0.0
+    if not (0.0 <= gx < ip[_NX] - 1 and 0.0 <= gr < ip[_NR] - 1 and 0.0 <= gt < ip[_NT] - 1):
+        qx = min(max(gx, 0.0), ip[_NX] - 1.0)
+        qr = min(max(gr, 0.0), ip[_NR] - 1.0)
+        qt = min(max(gt, 0.0), ip[_NT] - 1.0)
+        dx = (gx - qx) * fp[_HX]
+        rq = fp[_R0] + qr * fp[_HR]
+        half = 0.5 * (gt - qt) * fp[_HT]                 # half the angle between p and q about the axis
+        sh = math.sin(half)
+        gap = math.sqrt(dx * dx + (rho - rq) * (rho - rq) + 4.0 * rho * rq * sh * sh)
+        gx, gr, gt = qx, qr, qt
+    ix, ir, it = min(int(gx), ip[_NX] - 2), min(int(gr), ip[_NR] - 2), min(int(gt), ip[_NT] - 2)
     wx, wr, wt = np.float32(gx - ix), np.float32(gr - ir), np.float32(gt - it)
     # unsigned indices: no negative-index wrap-around code; float32 arithmetic on the (s, p) pairs
     sr = np.uint64(2 * ip[_NT])
@@ -836,6 +850,12 @@ def _fast_point(x, y, z, flat, hs, fp, ip):
     p = p0 + wx * (p1 - p0)
     if s != s or p != p:
         return nan, nan, nan, nan, False
+    sb, pb = float(s), float(p)
+    if gap > 0.0:
+        ex = max(fp[_FX0] - x, 0.0, x - fp[_FX1])
+        er = max(fp[_FR0] - rho, 0.0, rho - fp[_FR1])
+        rect = math.sqrt(ex * ex + er * er)
+        sb, pb = max(sb - gap, rect), max(pb - gap, rect)
     jx, jr = int(hx), int(hr)
     ax, ar = np.float32(hx - jx), np.float32(hr - jr)
     hsr = np.uint64(2 * ip[_NHR])
@@ -845,7 +865,7 @@ def _fast_point(x, y, z, flat, hs, fp, ip):
     h1 = hs[c1] + ar * (hs[c1 + two] - hs[c1])
     k0 = hs[c0 + one] + ar * (hs[c0 + three] - hs[c0 + one])
     k1 = hs[c1 + one] + ar * (hs[c1 + three] - hs[c1 + one])
-    return float(s), float(p), float(h0 + ax * (h1 - h0)), float(k0 + ax * (k1 - k0)), True
+    return sb, pb, float(h0 + ax * (h1 - h0)), float(k0 + ax * (k1 - k0)), True
 
 
 @numba.njit(cache=True)
@@ -953,21 +973,25 @@ def _points_kernel(points, channel_angle, mode, flat, hs, fpt, ipt, fp, ip, slow
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _pose_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow):
     """Per pose the minimum of each column over the points, and the point attaining it.
 
     Blocks of 64 poses x 128 points: a point under neighbouring poses reads
     the same cells while they are in cache; the running minima of a pose
-    stay in registers over a block of points. ``fpt``, ``ipt`` are the
-    parameter vectors as tuples (passed by value: no reloads after stores).
+    stay in registers over a block of points. Pose blocks run in parallel
+    (each writes its own rows). ``fpt``, ``ipt`` are the parameter vectors
+    as tuples (passed by value: no reloads after stores).
     """
     n_pose, n_pt = poses.shape[0], points.shape[0]
     best = np.full((n_pose, 4), np.inf)
     arg = np.zeros((n_pose, 4), dtype=np.int64)
-    work = new_work()
-    for q0 in range(0, n_pose, 64):
-        q1 = min(q0 + 64, n_pose)
+    # at least 8 blocks when there are few poses, so that every thread gets some
+    block = max(1, min(64, n_pose // 8))
+    for b in numba.prange((n_pose + block - 1) // block):
+        q0 = b * block
+        q1 = min(q0 + block, n_pose)
+        work = new_work()
         for k0 in range(0, n_pt, 128):
             k1 = min(k0 + 128, n_pt)
             for q in range(q0, q1):
@@ -1609,8 +1633,9 @@ class FastChannelField:
         nx, hx = _axis(x0 - 4.0, x1 + 4.0, h, coarse)
         nr, hr = _axis(r_lo, r_hi, h, coarse)
         nt, ht = _axis(t_lo, t_hi, h / r_mid, coarse)
-        # hub/shroud table: longer in x (an electrode approaches axially)
-        ext = max(10.0, 0.5 * (x1 - x0))
+        # hub/shroud table: longer in x, so that an electrode leaving the channel axially (its far end
+        # an electrode length past the blades) stays in it
+        ext = max(10.0, 1.25 * (x1 - x0))
         nhx, hhx = _axis(x0 - 4.0 - ext, x1 + 4.0 + ext, h, 1)
         nhr, hhr = _axis(r_lo, r_hi, h, 1)
         fp = np.zeros(_NPAR)
@@ -1910,7 +1935,7 @@ class FastChannelField:
         return dist, feet
 
     def fast_path(self, points, channel=0):
-        """Which points are answered from the tables alone (no exact solve, inside both tables).
+        """Which points are answered from the tables alone (no exact solve, inside the hub/shroud table).
 
         Parameters
         ----------
