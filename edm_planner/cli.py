@@ -154,7 +154,8 @@ def _geometry(args, out):
 
 def _check(args, out, err):
     from .geometry.loader import load_geometry
-    from .planning.export import read_plan, verify_exported_plan
+    from .interference.plan_check import verify_exported_plan
+    from .planning.export import read_plan
 
     geometry = load_geometry(args.geometry)
     plan = read_plan(args.plan_dir)

@@ -26,7 +26,7 @@ from scipy.spatial.transform import Rotation
 from edm_planner.geometry.frames import cylindrical_to_cartesian, rotation_about_x
 from edm_planner.geometry.loader import load_geometry
 from edm_planner.interference import SURFACES
-from edm_planner.interference import fast
+from edm_planner.interference import exact_solvers, fast, field_query
 from edm_planner.interference.exact_points import ExactChannelDistance, ProfileDistance
 from edm_planner.interference.fast import ACCURATE_WITHIN, FastChannelField, spline_surface_eval
 
@@ -139,7 +139,7 @@ def test_numba_profile_distance_is_exact(default, rotor37):
             xb, c, bounds = fast._profile_arrays(profile)
             rho = profile.radius_at(x) + rng.uniform(-5, 25, x.size) * sign
             ref = ProfileDistance(profile, material_below=below).signed(x, rho)[0]
-            got = np.array([fast._profile_signed(xb, c, bounds, sign, a, r) for a, r in zip(x, rho)])
+            got = np.array([exact_solvers._profile_signed(xb, c, bounds, sign, a, r) for a, r in zip(x, rho)])
             dense = np.empty_like(got)
             for i in range(len(x)):
                 dv = abs(rho[i] - profile.radius_at(x[i]))
@@ -160,7 +160,7 @@ def test_nearest_start_is_the_kd_tree_nearest_sample(default):
     for face in (0, 1):
         q = rng.uniform(samples[face].min(0) - 0.3, samples[face].max(0) + 0.3, (3000, 2))
         d_ref, _ = cKDTree(samples[face]).query(q)
-        got = np.array([fast._nearest_start(face, a * scale[face, 0], r * scale[face, 1], samples, scale, box,
+        got = np.array([exact_solvers._nearest_start(face, a * scale[face, 0], r * scale[face, 1], samples, scale, box,
                                             start, items) for a, r in q])
         np.testing.assert_allclose(np.linalg.norm(samples[face][got] - q, axis=1), d_ref, rtol=0, atol=1e-12)
 
@@ -295,7 +295,7 @@ def test_outside_the_grid_the_fast_path_gives_the_slow_paths_bound(default, fiel
         out = np.empty((len(points), 4))
         work = new_work()
         for k in range(len(points)):
-            v = fast._slow_point(points[k, 0], points[k, 1], points[k, 2], 0.0, flat, hs, fp, ip, slow, work)
+            v = field_query._slow_point(points[k, 0], points[k, 1], points[k, 2], 0.0, flat, hs, fp, ip, slow, work)
             out[k, 0], out[k, 1], out[k, 2], out[k, 3] = v
         return out
 

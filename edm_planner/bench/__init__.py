@@ -119,7 +119,7 @@ def bench_interference():
     out["exact_verify_poses_clear"] = int((~verified.colliding).sum())
     out["exact_verify_solves_per_pose_mean"] = round(float(field.exact_pose_clearances(many[:200], pts)[2].mean()))
     # verification of a whole real plan: every vertex at every one of >= 10^4 samples, exactly
-    from ..bench_interference import bench_verify_plan
+    from .interference import bench_verify_plan
 
     out.update(bench_verify_plan(g))
     t = time.perf_counter()

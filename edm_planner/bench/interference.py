@@ -19,12 +19,12 @@ KD-tree queries limited to one thread for every figure):
 densely sampled plan (issue 3): the rear electrode of a front/rear split
 planned on the default blisk with samples close enough for at least 10^4 of
 them, every electrode vertex at every sample checked by
-:func:`~.planning.export.verify_poses` (exact minimum clearance per surface),
+:func:`~..interference.plan_check.verify_poses` (exact minimum clearance per surface),
 on all of numba's threads and on one; and the same on the plan at the
 default sample spacing, and the whole re-check of its export directory.
 
 Every figure is a plain JSON number; its unit is in its key.
-Usage: ``python -m edm_planner.bench_interference [--config FILE] [--out FILE] [--no-verify-plan]``.
+Usage: ``python -m edm_planner.bench.interference [--config FILE] [--out FILE] [--no-verify-plan]``.
 """
 
 import argparse
@@ -37,9 +37,9 @@ import time
 import numba
 import numpy as np
 
-from .interference import SURFACES
-from .interference.exact_points import ExactChannelDistance
-from .interference.fast import ACCURATE_WITHIN, FastChannelField
+from ..interference import SURFACES
+from ..interference.exact_points import ExactChannelDistance
+from ..interference.fast import ACCURATE_WITHIN, FastChannelField
 
 CONFIG = pathlib.Path(__file__).resolve().parent.parent / "config"
 _log = logging.getLogger(__name__)
@@ -183,10 +183,10 @@ def bench_fast(blisk, electrode, spacing=0.1, n_poses=1000, seed=0):
 def _plan_rear(geometry, field, sample_spacing):
     """The rear electrode of a front/rear split (h = 0.03 rad, radial reduction 3 mm) in channel 0: 5 axes,
     step 0.1 mm, exit downstream (as the planning benchmark), samples ``sample_spacing`` mm apart."""
-    from .geometry.electrode import ElectrodeDesign
-    from .planning.plan import PlanOptions
-    from .planning.planner import plan_channel
-    from .planning.search import SearchOptions
+    from ..geometry.electrode import ElectrodeDesign
+    from ..planning.plan import PlanOptions
+    from ..planning.planner import plan_channel
+    from ..planning.search import SearchOptions
 
     design = ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, split="front_rear",
                              split_overlap=1.0)
@@ -214,9 +214,10 @@ def bench_verify_plan(geometry, sample_spacing=0.009, cache_dir=None):
     -------
     dict
         JSON-serialisable figures, units in the keys; ``exact_verify_plan_10000_samples_s`` is the time of
-        :func:`~.planning.export.verify_poses` on all threads, without the field's load (given separately).
+        :func:`~..interference.plan_check.verify_poses` on all threads, without the field's load (given separately).
     """
-    from .planning.export import verify_exported_plan, verify_poses, write_plan
+    from ..interference.plan_check import verify_exported_plan, verify_poses
+    from ..planning.export import write_plan
 
     b = geometry.blisk
     threads = numba.get_num_threads()
@@ -276,7 +277,7 @@ def bench_verify_plan(geometry, sample_spacing=0.009, cache_dir=None):
 
 def main(argv=None):
     """Run :func:`bench_fast` and :func:`bench_verify_plan` on a geometry and write the figures as JSON."""
-    from .geometry.loader import load_geometry
+    from ..geometry.loader import load_geometry
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default=str(CONFIG / "default_blisk.yaml"))

@@ -1,0 +1,332 @@
+"""Queries of the fast field (numba): per point, per pose, and the exact minimum per pose.
+
+``_fast_point`` is the fast path (trilinear in the float32 blade grid,
+bilinear in the hub/shroud table, lower bounds outside the grid);
+``_slow_point`` answers the cells marked for the exact solver and points
+outside the hub/shroud table. ``_points_kernel`` and ``_pose_kernel`` loop
+them over points and over (pose, point) pairs; ``_exact_pose_kernel`` prunes
+by the field and solves exactly only the points that can attain a pose's
+minimum. Units: mm, rad.
+"""
+
+import math
+
+import numba
+import numpy as np
+
+from ..geometry.spline_kernels import new_work
+from .field_params import ACCURATE_WITHIN, _ATAN, _CA, _FR0, _FR1, _FX0, _FX1, _HHR, _HHX, _HR, _HR0, _HT, _HX, _HX0, _IHHR, _IHHX, _IHR, _IHT, _IHX, _NHR, _NHX, _NR, _NT, _NX, _R0, _SA, _T0, _TC, _TWO_PI, _X0
+from .exact_solvers import _exact_blade, _exact_surface, _profile_signed
+
+
+@numba.njit(cache=True, inline="always")
+def _fast_point(x, y, z, flat, hs, fp, ip):
+    """The fast path: (suction, pressure, hub, shroud, ok); ok False sends the point to ``_slow_point``.
+
+    Trilinear in the blade grid (float32, both walls with shared weights),
+    bilinear in the hub/shroud table; outside the blade grid the slow
+    path's lower bound from the nearest grid point. Not ok: outside the
+    hub/shroud table, or a cell marked for the exact solver (NaN). ``fp`` holds the cosine and sine
+    of the grid's middle angle turned into the query's channel (``_CA``,
+    ``_SA``).
+    """
+    rho = math.sqrt(y * y + z * z)
+    # the angle about the grid's middle angle (turned into channel k): (y', z') = R(-a) (y, z)
+    yr = y * fp[_CA] + z * fp[_SA]
+    zr = z * fp[_CA] - y * fp[_SA]
+    if not (yr > 0.0 and abs(zr) <= 0.5 * yr):
+        return np.nan, np.nan, np.nan, np.nan, False
+    t = zr / yr
+    s2 = t * t
+    c = _ATAN
+    phi = t * (c[0] + s2 * (c[1] + s2 * (c[2] + s2 * (c[3] + s2 * (c[4] + s2 * (c[5] + s2 * (
+        c[6] + s2 * (c[7] + s2 * (c[8] + s2 * (c[9] + s2 * c[10]))))))))))
+    gx = (x - fp[_X0]) * fp[_IHX]
+    gr = (rho - fp[_R0]) * fp[_IHR]
+    gt = (phi + (fp[_TC] - fp[_T0])) * fp[_IHT]
+    hx = (x - fp[_HX0]) * fp[_IHHX]
+    hr = (rho - fp[_HR0]) * fp[_IHHR]
+    nan = np.nan
+    if not (0.0 <= hx < ip[_NHX] - 1 and 0.0 <= hr < ip[_NHR] - 1 and gx == gx and gr == gr and gt == gt):
+        return nan, nan, nan, nan, False
+    # outside the blade grid (an electrode on its way in or out, past the blades or turned beyond the
+    # grid's angles): the slow path's bound max(value at the nearest grid point q - |p - q|, box
+    # distance), from the tables alone
+    gap = 0.0
+    if not (0.0 <= gx < ip[_NX] - 1 and 0.0 <= gr < ip[_NR] - 1 and 0.0 <= gt < ip[_NT] - 1):
+        qx = min(max(gx, 0.0), ip[_NX] - 1.0)
+        qr = min(max(gr, 0.0), ip[_NR] - 1.0)
+        qt = min(max(gt, 0.0), ip[_NT] - 1.0)
+        dx = (gx - qx) * fp[_HX]
+        rq = fp[_R0] + qr * fp[_HR]
+        half = 0.5 * (gt - qt) * fp[_HT]                 # half the angle between p and q about the axis
+        sh = math.sin(half)
+        gap = math.sqrt(dx * dx + (rho - rq) * (rho - rq) + 4.0 * rho * rq * sh * sh)
+        gx, gr, gt = qx, qr, qt
+    ix, ir, it = min(int(gx), ip[_NX] - 2), min(int(gr), ip[_NR] - 2), min(int(gt), ip[_NT] - 2)
+    wx, wr, wt = np.float32(gx - ix), np.float32(gr - ir), np.float32(gt - it)
+    # unsigned indices: no negative-index wrap-around code; float32 arithmetic on the (s, p) pairs
+    sr = np.uint64(2 * ip[_NT])
+    sx = np.uint64(2 * ip[_NT] * ip[_NR])
+    one, two, three = np.uint64(1), np.uint64(2), np.uint64(3)
+    b0 = np.uint64(ix) * sx + np.uint64(ir) * sr + np.uint64(it) * two
+    b1 = b0 + sr
+    b2 = b0 + sx
+    b3 = b2 + sr
+    s00 = flat[b0] + wt * (flat[b0 + two] - flat[b0])
+    p00 = flat[b0 + one] + wt * (flat[b0 + three] - flat[b0 + one])
+    s01 = flat[b1] + wt * (flat[b1 + two] - flat[b1])
+    p01 = flat[b1 + one] + wt * (flat[b1 + three] - flat[b1 + one])
+    s10 = flat[b2] + wt * (flat[b2 + two] - flat[b2])
+    p10 = flat[b2 + one] + wt * (flat[b2 + three] - flat[b2 + one])
+    s11 = flat[b3] + wt * (flat[b3 + two] - flat[b3])
+    p11 = flat[b3 + one] + wt * (flat[b3 + three] - flat[b3 + one])
+    s0 = s00 + wr * (s01 - s00)
+    s1 = s10 + wr * (s11 - s10)
+    p0 = p00 + wr * (p01 - p00)
+    p1 = p10 + wr * (p11 - p10)
+    s = s0 + wx * (s1 - s0)
+    p = p0 + wx * (p1 - p0)
+    if s != s or p != p:
+        return nan, nan, nan, nan, False
+    sb, pb = float(s), float(p)
+    if gap > 0.0:
+        ex = max(fp[_FX0] - x, 0.0, x - fp[_FX1])
+        er = max(fp[_FR0] - rho, 0.0, rho - fp[_FR1])
+        rect = math.sqrt(ex * ex + er * er)
+        sb, pb = max(sb - gap, rect), max(pb - gap, rect)
+    jx, jr = int(hx), int(hr)
+    ax, ar = np.float32(hx - jx), np.float32(hr - jr)
+    hsr = np.uint64(2 * ip[_NHR])
+    c0 = np.uint64(jx) * hsr + np.uint64(jr) * two
+    c1 = c0 + hsr
+    h0 = hs[c0] + ar * (hs[c0 + two] - hs[c0])
+    h1 = hs[c1] + ar * (hs[c1 + two] - hs[c1])
+    k0 = hs[c0 + one] + ar * (hs[c0 + three] - hs[c0 + one])
+    k1 = hs[c1 + one] + ar * (hs[c1 + three] - hs[c1 + one])
+    return sb, pb, float(h0 + ax * (h1 - h0)), float(k0 + ax * (k1 - k0)), True
+
+
+@numba.njit(cache=True)
+def _trilinear(flat, ip, gx, gr, gt, face):
+    """Trilinear value of one wall at fractional grid indices inside the grid (float64)."""
+    nr, nt = ip[_NR], ip[_NT]
+    ix = min(int(gx), ip[_NX] - 2)
+    ir = min(int(gr), nr - 2)
+    it = min(int(gt), nt - 2)
+    wx, wr, wt = gx - ix, gr - ir, gt - it
+    acc = 0.0
+    for a in range(8):
+        jx, jr, jt = ix + (a & 1), ir + ((a >> 1) & 1), it + ((a >> 2) & 1)
+        w = (wx if a & 1 else 1.0 - wx) * (wr if a & 2 else 1.0 - wr) * (wt if a & 4 else 1.0 - wt)
+        acc += w * flat[((jx * nr + jr) * nt + jt) * 2 + face]
+    return acc
+
+
+@numba.njit(cache=True)
+def _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work):
+    """The general path of a query (any point): returns (suction, pressure, hub, shroud).
+
+    Inside the grid: trilinear, or the exact solver in cells marked for it.
+    Outside: the conservative lower bound ``max(value at the nearest grid
+    point q - |p - q|, distance to the faces' (x, r) bounding box)``. Hub and
+    shroud: the table, or the exact profile distance outside it.
+    """
+    rho = math.sqrt(y * y + z * z)
+    th = math.atan2(z, y) - channel_angle
+    th -= _TWO_PI * math.floor((th - fp[_TC] + math.pi) / _TWO_PI)
+    nx, nr, nt = ip[_NX], ip[_NR], ip[_NT]
+    gx = (x - fp[_X0]) / fp[_HX]
+    gr = (rho - fp[_R0]) / fp[_HR]
+    gt = (th - fp[_T0]) / fp[_HT]
+    outside = not (0.0 <= gx <= nx - 1 and 0.0 <= gr <= nr - 1 and 0.0 <= gt <= nt - 1)
+    qx, qr, qt = min(max(gx, 0.0), nx - 1.0), min(max(gr, 0.0), nr - 1.0), min(max(gt, 0.0), nt - 1.0)
+    xq = fp[_X0] + qx * fp[_HX]
+    rq = fp[_R0] + qr * fp[_HR]
+    tq = fp[_T0] + qt * fp[_HT]
+    s = _trilinear(flat, ip, qx, qr, qt, 0)
+    if s != s:
+        s = _exact_blade(0, xq, rq, tq, fp, ip, slow, work)
+    p = _trilinear(flat, ip, qx, qr, qt, 1)
+    if p != p:
+        p = _exact_blade(1, xq, rq, tq, fp, ip, slow, work)
+    if outside:
+        dx = x - xq
+        dy = rho * math.cos(th) - rq * math.cos(tq)
+        dz = rho * math.sin(th) - rq * math.sin(tq)
+        gap = math.sqrt(dx * dx + dy * dy + dz * dz)
+        # the faces lie in [FX0, FX1] x [FR0, FR1] of the (x, r) half-plane: a second lower bound
+        ex = max(fp[_FX0] - x, 0.0, x - fp[_FX1])
+        er = max(fp[_FR0] - rho, 0.0, rho - fp[_FR1])
+        rect = math.sqrt(ex * ex + er * er)
+        s = max(s - gap, rect)
+        p = max(p - gap, rect)
+    hx = (x - fp[_HX0]) / fp[_HHX]
+    hr = (rho - fp[_HR0]) / fp[_HHR]
+    nhx, nhr = ip[_NHX], ip[_NHR]
+    if 0.0 <= hx <= nhx - 1 and 0.0 <= hr <= nhr - 1:
+        jx = min(int(hx), nhx - 2)
+        jr = min(int(hr), nhr - 2)
+        ax, ar = hx - jx, hr - jr
+        i00, i01 = (jx * nhr + jr) * 2, (jx * nhr + jr + 1) * 2
+        i10, i11 = ((jx + 1) * nhr + jr) * 2, ((jx + 1) * nhr + jr + 1) * 2
+        h = ((1 - ax) * ((1 - ar) * hs[i00] + ar * hs[i01]) + ax * ((1 - ar) * hs[i10] + ar * hs[i11]))
+        c_ = ((1 - ax) * ((1 - ar) * hs[i00 + 1] + ar * hs[i01 + 1])
+              + ax * ((1 - ar) * hs[i10 + 1] + ar * hs[i11 + 1]))
+    else:
+        h = _profile_signed(slow[11], slow[12], slow[13], 1.0, x, rho)
+        c_ = _profile_signed(slow[14], slow[15], slow[16], -1.0, x, rho)
+    return s, p, h, c_
+
+
+@numba.njit(cache=True)
+def _points_kernel(points, channel_angle, mode, flat, hs, fpt, ipt, fp, ip, slow):
+    """(n, 4) per point: the field (mode 0), the exact solvers (mode 1) or fast-path flags (mode 2).
+
+    Mode 0: the four clearances as ``FastChannelField.clearances``. Mode 1:
+    the exact signed distances, numba blade solver and profile solver, no
+    table. Mode 2: 1.0 in column 0 where the fast path answers. One kernel
+    for the three, so that the slow path is compiled once more only.
+    """
+    n = points.shape[0]
+    out = np.zeros((n, 4))
+    work = new_work()
+    for k in range(n):
+        x, y, z = points[k, 0], points[k, 1], points[k, 2]
+        if mode == 1:
+            rho = math.sqrt(y * y + z * z)
+            th = math.atan2(z, y) - channel_angle
+            th -= _TWO_PI * math.floor((th - fp[_TC] + math.pi) / _TWO_PI)
+            out[k, 0] = _exact_blade(0, x, rho, th, fp, ip, slow, work)
+            out[k, 1] = _exact_blade(1, x, rho, th, fp, ip, slow, work)
+            out[k, 2] = _profile_signed(slow[11], slow[12], slow[13], 1.0, x, rho)
+            out[k, 3] = _profile_signed(slow[14], slow[15], slow[16], -1.0, x, rho)
+            continue
+        s, p, h, c, ok = _fast_point(x, y, z, flat, hs, fpt, ipt)
+        if mode == 2:
+            out[k, 0] = 1.0 if ok else 0.0
+            continue
+        if not ok:
+            s, p, h, c = _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work)
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = s, p, h, c
+    return out
+
+
+@numba.njit(cache=True, parallel=True)
+def _pose_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow):
+    """Per pose the minimum of each column over the points, and the point attaining it.
+
+    Blocks of 64 poses x 128 points: a point under neighbouring poses reads
+    the same cells while they are in cache; the running minima of a pose
+    stay in registers over a block of points. Pose blocks run in parallel
+    (each writes its own rows). ``fpt``, ``ipt`` are the parameter vectors
+    as tuples (passed by value: no reloads after stores).
+    """
+    n_pose, n_pt = poses.shape[0], points.shape[0]
+    best = np.full((n_pose, 4), np.inf)
+    arg = np.zeros((n_pose, 4), dtype=np.int64)
+    # at least 8 blocks when there are few poses, so that every thread gets some
+    block = max(1, min(64, n_pose // 8))
+    for b in numba.prange((n_pose + block - 1) // block):
+        q0 = b * block
+        q1 = min(q0 + block, n_pose)
+        work = new_work()
+        for k0 in range(0, n_pt, 128):
+            k1 = min(k0 + 128, n_pt)
+            for q in range(q0, q1):
+                m00, m01, m02, m03 = poses[q, 0, 0], poses[q, 0, 1], poses[q, 0, 2], poses[q, 0, 3]
+                m10, m11, m12, m13 = poses[q, 1, 0], poses[q, 1, 1], poses[q, 1, 2], poses[q, 1, 3]
+                m20, m21, m22, m23 = poses[q, 2, 0], poses[q, 2, 1], poses[q, 2, 2], poses[q, 2, 3]
+                b0, b1, b2, b3 = best[q, 0], best[q, 1], best[q, 2], best[q, 3]
+                a0, a1, a2, a3 = arg[q, 0], arg[q, 1], arg[q, 2], arg[q, 3]
+                for k in range(k0, k1):
+                    ex, ey, ez = points[k, 0], points[k, 1], points[k, 2]
+                    x = m00 * ex + m01 * ey + m02 * ez + m03
+                    y = m10 * ex + m11 * ey + m12 * ez + m13
+                    z = m20 * ex + m21 * ey + m22 * ez + m23
+                    s, p, h, c, ok = _fast_point(x, y, z, flat, hs, fpt, ipt)
+                    if not ok:
+                        s, p, h, c = _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work)
+                    if s < b0:
+                        b0, a0 = s, k
+                    if p < b1:
+                        b1, a1 = p, k
+                    if h < b2:
+                        b2, a2 = h, k
+                    if c < b3:
+                        b3, a3 = c, k
+                best[q, 0], best[q, 1], best[q, 2], best[q, 3] = b0, b1, b2, b3
+                arg[q, 0], arg[q, 1], arg[q, 2], arg[q, 3] = a0, a1, a2, a3
+    return best, arg
+
+
+@numba.njit(cache=True)
+def _exact_pose_kernel(poses, points, channel_angle, near_bound, far_bound, flat, hs, fpt, ipt, fp, ip, slow):
+    """Per pose the exact minimum of each surface's signed distance over the points (branch and bound).
+
+    Per point the field gives a lower bound of the exact distance: its value
+    minus ``near_bound`` where it is certainly within 2 mm of the surface,
+    minus ``far_bound`` elsewhere inside the tables, the value itself outside
+    them (there it is a lower bound already). Per surface the point with the
+    lowest bound is solved exactly first; every other point is solved only
+    while its bound does not exceed the smallest exact value found so far, so
+    the result is the exact minimum over all points whatever the order.
+
+    Returns
+    -------
+    best : (P, 4) float, arg : (P, 4) int, solved : (P,) int (exact solves per pose)
+    """
+    n_pose, n_pt = poses.shape[0], points.shape[0]
+    best = np.full((n_pose, 4), np.inf)
+    arg = np.zeros((n_pose, 4), dtype=np.int64)
+    solved = np.zeros(n_pose, dtype=np.int64)
+    world = np.empty((n_pt, 3))
+    low = np.empty((n_pt, 4))
+    work = new_work()
+    nx, nr, nt, nhx, nhr = ip[_NX], ip[_NR], ip[_NT], ip[_NHX], ip[_NHR]
+    sure_near = ACCURATE_WITHIN - far_bound       # |value| below this: |exact| <= 2 mm
+    for q in range(n_pose):
+        first = np.zeros(4, dtype=np.int64)
+        lmin = np.full(4, np.inf)
+        for k in range(n_pt):
+            ex, ey, ez = points[k, 0], points[k, 1], points[k, 2]
+            x = poses[q, 0, 0] * ex + poses[q, 0, 1] * ey + poses[q, 0, 2] * ez + poses[q, 0, 3]
+            y = poses[q, 1, 0] * ex + poses[q, 1, 1] * ey + poses[q, 1, 2] * ez + poses[q, 1, 3]
+            z = poses[q, 2, 0] * ex + poses[q, 2, 1] * ey + poses[q, 2, 2] * ez + poses[q, 2, 3]
+            world[k, 0], world[k, 1], world[k, 2] = x, y, z
+            s, p, h, c, ok = _fast_point(x, y, z, flat, hs, fpt, ipt)
+            in_grid, in_table = True, True
+            if not ok:
+                s, p, h, c = _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work)
+                rho = math.sqrt(y * y + z * z)
+                th = math.atan2(z, y) - channel_angle
+                th -= _TWO_PI * math.floor((th - fp[_TC] + math.pi) / _TWO_PI)
+                gx, gr, gt = (x - fp[_X0]) / fp[_HX], (rho - fp[_R0]) / fp[_HR], (th - fp[_T0]) / fp[_HT]
+                in_grid = 0.0 <= gx <= nx - 1 and 0.0 <= gr <= nr - 1 and 0.0 <= gt <= nt - 1
+                hx, hr = (x - fp[_HX0]) / fp[_HHX], (rho - fp[_HR0]) / fp[_HHR]
+                in_table = 0.0 <= hx <= nhx - 1 and 0.0 <= hr <= nhr - 1
+            vals = (s, p, h, c)
+            for j in range(4):
+                v = vals[j]
+                inside = in_grid if j < 2 else in_table
+                if inside:
+                    v -= near_bound if abs(v) <= sure_near else far_bound
+                low[k, j] = v
+                if v < lmin[j]:
+                    lmin[j], first[j] = v, k
+        for j in range(4):
+            ub, a = np.inf, first[j]
+            for step in range(n_pt + 1):
+                k = first[j] if step == 0 else step - 1
+                if (step > 0 and k == first[j]) or low[k, j] > ub:
+                    continue
+                x, y, z = world[k, 0], world[k, 1], world[k, 2]
+                rho = math.sqrt(y * y + z * z)
+                th = math.atan2(z, y) - channel_angle
+                th -= _TWO_PI * math.floor((th - fp[_TC] + math.pi) / _TWO_PI)
+                d = _exact_surface(j, x, rho, th, fp, ip, slow, work)
+                solved[q] += 1
+                if d < ub:
+                    ub, a = d, k
+            best[q, j], arg[q, j] = ub, a
+    return best, arg, solved
