@@ -312,11 +312,12 @@ def test_real_plan_timed_on_the_default_machine(real_plan, machine):
     assert max(np.max(t.peak_velocity / vmax(machine)), np.max(t.peak_acceleration / amax(machine)),
                np.max(t.peak_jerk / jmax(machine))) == pytest.approx(1.0, rel=1e-6)
     assert t.time_scale < 1.5
-    # smoothing toppra's profile is what keeps the jerk stretch down: without it the plan takes ~25 % longer
-    # (17.2 s against 13.7 s since the spline parameter is the distance along the reference, 9c04a67)
+    # smoothing toppra's profile is what keeps the jerk stretch down: without it the plan takes longer, its
+    # stretch much larger (on this plan 15.9 s against 14.2 s, stretch 1.87 against 1.49; 25 % longer on the
+    # plan before the GCV fit of 010d14d and the outside-grid bounds of 86bc15f)
     raw = plan_trajectory(plan.samples, plan.axis_names, machine, TimingOptions(smoothing_window=1))
     check_trajectory(raw.timed, plan.samples, vmax(machine), amax(machine), jmax(machine))
-    assert raw.duration > 1.2 * j.duration and raw.timed.time_scale > 1.8
+    assert raw.duration > 1.08 * j.duration and raw.timed.time_scale > t.time_scale + 0.25
     # measured deviation between samples from the certified chords: sub-micrometre / a few tens of microradians
     # (C: 1.6e-5 rad since 9c04a67, i.e. 0.3 um at 20 mm from the C axis)
     assert np.all(t.deviation_between_samples[:3] < 1e-3) and np.all(t.deviation_between_samples[3:] < 3e-5)
