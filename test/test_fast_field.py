@@ -329,6 +329,18 @@ def test_pose_clearances_is_clearances_then_minimum(default, field):
             np.testing.assert_array_equal(d[arg[q], range(4)], low[q])
 
 
+def test_posed_clearances_is_clearances_of_the_posed_points(default, field):
+    e = default.electrodes[0]
+    pts = electrode_points(e, step=7)
+    for channel in (0, 5):
+        poses = small_motions(e.pose_in_channel(channel, default.blisk.pitch), 5, seed=71 + channel, shift=0.3)
+        poses[-1, :3, 3] += [25.0, 0.0, 0.0]                 # one pose leaving the channel: outside the grid
+        got = field.posed_clearances(poses, pts, channel)
+        assert got.shape == (5, len(pts), 4)
+        for q in range(5):
+            np.testing.assert_allclose(got[q], field.clearances(to_world(poses[q], pts), channel), rtol=0, atol=1e-12)
+
+
 # ----------------------------------------------------------------- cache
 
 def coarse_field(blisk, cache_dir, key):

@@ -20,7 +20,9 @@ import numba
 import numpy as np
 
 from ..geometry.spline_kernels import new_work, project, project_edge, uv_at
-from .field_params import _COARSE, _FAR_START, _HR, _HT, _HX, _JUMP, _NCR, _NCT, _NCX, _NEWTON_TOL, _NR, _NX, _PITCH, _R0, _SCALE, _T0, _TC, _TWO_PI, _X0
+from .field_params import (
+    _COARSE, _FAR_START, _HR, _HT, _HX, _JUMP, _NCR, _NCT, _NCX, _NEWTON_TOL, _NR, _NX, _PITCH, _R0,
+    _SCALE, _T0, _TC, _TWO_PI, _X0)
 
 
 @numba.njit(cache=True)

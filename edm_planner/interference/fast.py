@@ -83,7 +83,7 @@ from .field_params import (
     _PITCH, _R0, _SA, _SCALE, _T0, _TC, _X0)
 from .exact_solvers import _behind_kernel, _exact_blade_feet, _fill_profile_table
 from .field_build import _classify_coarse, _fill_coarse, _fill_fine, _fill_lines, _flag_nodes
-from .field_query import _exact_pose_kernel, _points_kernel, _pose_kernel
+from .field_query import _exact_pose_kernel, _points_kernel, _pose_kernel, _posed_kernel
 
 _log = logging.getLogger(__name__)
 
@@ -488,6 +488,29 @@ class FastChannelField:
         if p.ndim != 2 or p.shape[1] != 3:
             raise ValueError(f"points must be (n, 3), got {p.shape}")
         return _points_kernel(p, float(channel) * self.blisk.pitch, mode, *self._kernel_args(channel))
+
+    def posed_clearances(self, poses, points, channel=0):
+        """The four clearances of every point under every pose: ``clearances`` of the posed points.
+
+        Parameters
+        ----------
+        poses : (P, 4, 4) float
+            Electrode frame -> W.
+        points : (M, 3) float
+            In the electrode frame [mm].
+        channel : int
+
+        Returns
+        -------
+        (P, M, 4) float
+            [mm], as ``clearances(points placed by each pose)``, computed in one
+            numba loop on all threads.
+        """
+        poses = np.ascontiguousarray(np.asanyarray(poses, dtype=np.float64).reshape(-1, 4, 4))
+        pts = np.ascontiguousarray(np.atleast_2d(np.asanyarray(points, dtype=np.float64)))
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"posed_clearances: points must be (M, 3), got {pts.shape}")
+        return _posed_kernel(poses, pts, float(channel) * self.blisk.pitch, *self._kernel_args(channel))
 
     def pose_clearances(self, poses, points, channel=0):
         """Per pose and surface: the minimum signed distance over the electrode points.

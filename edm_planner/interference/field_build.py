@@ -15,7 +15,8 @@ import numba
 import numpy as np
 
 from ..geometry.spline_kernels import new_work, project_edge, surface_eval, uv_at
-from .field_params import _COARSE, _HR, _HT, _HX, _NCR, _NCT, _NCX, _NEWTON_TOL, _NR, _NT, _NX, _PITCH, _R0, _T0, _X0
+from .field_params import (
+    _COARSE, _HR, _HT, _HX, _NCR, _NCT, _NCX, _NEWTON_TOL, _NR, _NT, _NX, _PITCH, _R0, _T0, _X0)
 from .exact_solvers import _behind, _on_edge, _solve_node
 
 

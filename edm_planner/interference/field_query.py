@@ -15,7 +15,9 @@ import numba
 import numpy as np
 
 from ..geometry.spline_kernels import new_work
-from .field_params import ACCURATE_WITHIN, _ATAN, _CA, _FR0, _FR1, _FX0, _FX1, _HHR, _HHX, _HR, _HR0, _HT, _HX, _HX0, _IHHR, _IHHX, _IHR, _IHT, _IHX, _NHR, _NHX, _NR, _NT, _NX, _R0, _SA, _T0, _TC, _TWO_PI, _X0
+from .field_params import (
+    ACCURATE_WITHIN, _ATAN, _CA, _FR0, _FR1, _FX0, _FX1, _HHR, _HHX, _HR, _HR0, _HT, _HX, _HX0, _IHHR,
+    _IHHX, _IHR, _IHT, _IHX, _NHR, _NHX, _NR, _NT, _NX, _R0, _SA, _T0, _TC, _TWO_PI, _X0)
 from .exact_solvers import _exact_blade, _exact_surface, _profile_signed
 
 
@@ -209,6 +211,34 @@ def _points_kernel(points, channel_angle, mode, flat, hs, fpt, ipt, fp, ip, slow
         if not ok:
             s, p, h, c = _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work)
         out[k, 0], out[k, 1], out[k, 2], out[k, 3] = s, p, h, c
+    return out
+
+
+@numba.njit(cache=True, parallel=True)
+def _posed_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow):
+    """(P, M, 4): the four clearances of every point under every pose, transform and lookup in one loop.
+
+    Chunks of 256 points of one pose run in parallel (each writes its own
+    rows); no (P, M, 3) temporary of transformed points.
+    """
+    n_pose, n_pt = poses.shape[0], points.shape[0]
+    out = np.empty((n_pose, n_pt, 4))
+    per_pose = (n_pt + 255) // 256
+    for c in numba.prange(n_pose * per_pose):
+        q, k0 = c // per_pose, (c % per_pose) * 256
+        work = new_work()
+        m00, m01, m02, m03 = poses[q, 0, 0], poses[q, 0, 1], poses[q, 0, 2], poses[q, 0, 3]
+        m10, m11, m12, m13 = poses[q, 1, 0], poses[q, 1, 1], poses[q, 1, 2], poses[q, 1, 3]
+        m20, m21, m22, m23 = poses[q, 2, 0], poses[q, 2, 1], poses[q, 2, 2], poses[q, 2, 3]
+        for k in range(k0, min(k0 + 256, n_pt)):
+            ex, ey, ez = points[k, 0], points[k, 1], points[k, 2]
+            x = m00 * ex + m01 * ey + m02 * ez + m03
+            y = m10 * ex + m11 * ey + m12 * ez + m13
+            z = m20 * ex + m21 * ey + m22 * ez + m23
+            s, p, h, c_, ok = _fast_point(x, y, z, flat, hs, fpt, ipt)
+            if not ok:
+                s, p, h, c_ = _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work)
+            out[q, k, 0], out[q, k, 1], out[q, k, 2], out[q, k, 3] = s, p, h, c_
     return out
 
 

@@ -192,10 +192,11 @@ class ExitSearch:
         """(n, m, 4) fast clearances of the search points (or of ``points``) for candidate states."""
         points = self.points if points is None else points
         poses = self._poses(states)
+        self.evaluations += len(poses)
+        if hasattr(self.field, "posed_clearances"):        # the fast field: transform and lookup in one loop
+            return self.field.posed_clearances(poses, points, 0)
         world = np.einsum("pij,mj->pmi", poses[:, :3, :3], points) + poses[:, None, :3, 3]
-        n, m, _ = world.shape
-        self.evaluations += n
-        return self.field.clearances(world.reshape(-1, 3), 0).reshape(n, m, 4)
+        return self.field.clearances(world.reshape(-1, 3), 0).reshape(len(poses), len(points), 4)
 
     def _assess(self, states):
         """Per candidate: minimum clearance per surface (n, 4) and feasibility (n,)."""
