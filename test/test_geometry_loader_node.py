@@ -117,6 +117,35 @@ def test_inline_yaml_and_same_content_same_id(shared_ros, loader):
     assert by_path.geometry_id == inline.geometry_id
 
 
+def test_a_geometry_the_topic_already_holds_is_not_published_again(shared_ros, loader):
+    """LoadGeometry of what the latched topic holds answers without a new message; another geometry does."""
+    ros = shared_ros
+    _, client = loader
+    first = _load(ros, client, path="rotor37.yaml")
+    got, arrived = [], threading.Condition()
+
+    def on_geometry(msg):
+        with arrived:
+            got.append(msg.summary.geometry_id)
+            arrived.notify_all()
+
+    def wait_for(count):
+        with arrived:
+            assert arrived.wait_for(lambda: len(got) >= count, timeout=60), got
+
+    client.create_subscription(BliskGeometry, "geometry", on_geometry, LATCHED)
+    wait_for(1)                                                       # the latched message: rotor 37
+    again = _load(ros, client, path="rotor37.yaml")                   # already on the topic
+    default = _load(ros, client, path="default_blisk.yaml")           # another geometry: published
+    wait_for(2)
+    _load(ros, client, path="default_blisk.yaml")
+    _load(ros, client, path="rotor37.yaml")
+    wait_for(3)
+    assert again.success and again.geometry_id == first.geometry_id
+    # messages of one publisher arrive in order: no repeat between the changes
+    assert got == [first.geometry_id, default.geometry_id, first.geometry_id]
+
+
 @pytest.mark.parametrize("fields, code, words", [
     ({}, ErrorCode.INVALID_REQUEST, "exactly one"),
     ({"path": "x.yaml", "yaml_text": "blade_count: 2"}, ErrorCode.INVALID_REQUEST, "exactly one"),

@@ -71,6 +71,7 @@ class GeometryLoaderNode(Node):
         self.add_on_set_parameters_callback(self._check_parameters)
         self.geometries = {}
         self._memo = GeometryMemo()          # an unchanged file is answered without building it again
+        self._published = None               # what the latched topics hold: (geometry id, frame, mesh resolution)
         self._lock = threading.Lock()
         self.geometry_pub = self.create_publisher(BliskGeometry, "geometry", LATCHED)
         self.marker_pub = self.create_publisher(MarkerArray, "geometry_markers", LATCHED)
@@ -124,7 +125,8 @@ class GeometryLoaderNode(Node):
             return self._fail(response, ErrorCode.INTERNAL, f"internal error: {exc!r}")
         with self._lock:
             self.geometries[geometry.geometry_id] = geometry
-        self.publish(geometry)
+        if self._published != self._publication(geometry):    # the latched topics already hold it: not again
+            self.publish(geometry)
         response.success = True
         response.error_code = error_code(ErrorCode.SUCCESS)
         response.geometry_id = geometry.geometry_id
@@ -141,8 +143,13 @@ class GeometryLoaderNode(Node):
         self.get_logger().warning(f"LoadGeometry failed ({ErrorCode(code).name}): {message}")
         return response
 
+    def _publication(self, geometry):
+        return (geometry.geometry_id, self.get_parameter("frame_id").value,
+                self.get_parameter("mesh_resolution").value)
+
     def publish(self, geometry):
         """Publish the geometry and its markers on the latched topics."""
+        self._published = self._publication(geometry)
         frame = self.get_parameter("frame_id").value
         stamp = self.get_clock().now().to_msg()
         meshes = geometry.blisk.channel_meshes(resolution=self.get_parameter("mesh_resolution").value)
