@@ -57,6 +57,7 @@ import time
 from dataclasses import dataclass, field
 
 import igl
+import numba
 import numpy as np
 
 from ..geometry.blisk import CHANNEL_SURFACES
@@ -132,6 +133,65 @@ def _poses(poses):
 
 
 # -- exact signed distance ------------------------------------------------------
+@numba.njit(cache=True)
+def _inside(q, closest, face, V, F, face_normals, edge_normals, vertex_normals, tol):
+    """Per query: is it inside the mesh? The pseudonormal of the closest feature (face, edge or vertex).
+
+    A barycentric coordinate of the closest point at or below ``tol`` puts it
+    on the opposite edge (one small) or on a vertex (two small, the largest
+    one's corner); the query is inside where ``(q - closest) . normal < 0``.
+    """
+    n = q.shape[0]
+    out = np.zeros(n, dtype=np.bool_)
+    bary = np.empty(3)
+    for i in range(n):
+        f = face[i]
+        a, b, c = F[f, 0], F[f, 1], F[f, 2]
+        e0x, e0y, e0z = V[b, 0] - V[a, 0], V[b, 1] - V[a, 1], V[b, 2] - V[a, 2]
+        e1x, e1y, e1z = V[c, 0] - V[a, 0], V[c, 1] - V[a, 1], V[c, 2] - V[a, 2]
+        px, py, pz = closest[i, 0] - V[a, 0], closest[i, 1] - V[a, 1], closest[i, 2] - V[a, 2]
+        d00 = e0x * e0x + e0y * e0y + e0z * e0z
+        d01 = e0x * e1x + e0y * e1y + e0z * e1z
+        d11 = e1x * e1x + e1y * e1y + e1z * e1z
+        d20 = px * e0x + py * e0y + pz * e0z
+        d21 = px * e1x + py * e1y + pz * e1z
+        den = d00 * d11 - d01 * d01
+        if not abs(den) > 0:
+            den = 1.0
+        b1 = (d11 * d20 - d01 * d21) / den
+        b2 = (d00 * d21 - d01 * d20) / den
+        bary[0], bary[1], bary[2] = 1.0 - b1 - b2, b1, b2
+        small, low, high = 0, 0, 0
+        for j in range(3):
+            if bary[j] <= tol:
+                small += 1
+            if bary[j] < bary[low]:
+                low = j
+            if bary[j] > bary[high]:
+                high = j
+        dx, dy, dz = q[i, 0] - closest[i, 0], q[i, 1] - closest[i, 1], q[i, 2] - closest[i, 2]
+        if small == 1:
+            dot = dx * edge_normals[f, low, 0] + dy * edge_normals[f, low, 1] + dz * edge_normals[f, low, 2]
+        elif small >= 2:
+            v = F[f, high]
+            dot = dx * vertex_normals[v, 0] + dy * vertex_normals[v, 1] + dz * vertex_normals[v, 2]
+        else:
+            dot = dx * face_normals[f, 0] + dy * face_normals[f, 1] + dz * face_normals[f, 2]
+        out[i] = dot < 0
+    return out
+
+
+@numba.njit(cache=True)
+def _scatter_min(idx, vals, pose, best, which, j):
+    """best[idx] = min(best[idx], vals) pair by pair, ``which`` the (sweep, pose) of each new minimum."""
+    for i in range(len(idx)):
+        p = idx[i]
+        if vals[i] < best[p]:
+            best[p] = vals[i]
+            which[p, 0] = j
+            which[p, 1] = pose[i]
+
+
 class MeshDistance:
     """Exact signed distance to one closed triangle mesh (libigl + pseudonormal sign).
 
@@ -173,26 +233,11 @@ class MeshDistance:
         if not len(q):
             return np.zeros(0)
         dist, face, closest = igl.signed_distance(q, self.V, self.F, sign_type=igl.SIGNED_DISTANCE_TYPE_UNSIGNED)
-        dist, face = np.asarray(dist, dtype=np.float64).ravel(), np.asarray(face).ravel()
-        tri = self.V[self.F[face]]
-        v0, v1, v2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], closest - tri[:, 0]
-        d00, d01, d11 = (np.einsum("ij,ij->i", a, b) for a, b in ((v0, v0), (v0, v1), (v1, v1)))
-        d20, d21 = np.einsum("ij,ij->i", v2, v0), np.einsum("ij,ij->i", v2, v1)
-        den = np.where(np.abs(d00 * d11 - d01**2) > 0, d00 * d11 - d01**2, 1.0)
-        b1 = (d11 * d20 - d01 * d21) / den
-        b2 = (d00 * d21 - d01 * d20) / den
-        bary = np.column_stack([1.0 - b1 - b2, b1, b2])
-        small = bary <= REMOVAL.barycentric
-        count = small.sum(axis=1)
-        normal = self.face_normals[face]
-        on_edge = count == 1
-        if on_edge.any():
-            normal[on_edge] = self.edge_normals[face[on_edge], np.argmin(bary[on_edge], axis=1)]
-        on_vertex = count >= 2
-        if on_vertex.any():
-            corner = np.argmax(bary[on_vertex], axis=1)
-            normal[on_vertex] = self.vertex_normals[self.F[face[on_vertex], corner]]
-        inside = np.einsum("ij,ij->i", q - closest, normal) < 0
+        dist = np.asarray(dist, dtype=np.float64).ravel()
+        face = np.ascontiguousarray(np.asarray(face, dtype=np.int64).ravel())
+        closest = np.ascontiguousarray(closest, dtype=np.float64).reshape(-1, 3)
+        inside = _inside(q, closest, face, self.V, self.F, self.face_normals, self.edge_normals,
+                         self.vertex_normals, REMOVAL.barycentric)
         return np.where(inside, -dist, dist)
 
     def box_distance(self, points):
@@ -334,13 +379,8 @@ def stock_at_points(points, sweeps, gap, stats=None):
             vals[s:s + REMOVAL.batch] = dist(q[s:s + REMOVAL.batch]) - gaps[j]
             counts["calls"] += 1
         counts["queries"] += len(idx)
-        # per point, the smallest value of this batch
-        order = np.lexsort((vals, idx))
-        first = order[np.r_[True, idx[order][1:] != idx[order][:-1]]]
-        pi, better = idx[first], vals[first] < best[idx[first]]
-        best[pi[better]] = vals[first][better]
-        which[pi[better], 0] = j
-        which[pi[better], 1] = pose[first][better]
+        _scatter_min(np.ascontiguousarray(idx, dtype=np.int64), vals,
+                     np.ascontiguousarray(np.broadcast_to(pose, idx.shape), dtype=np.int64), best, which, j)
         return vals
 
     # seed: every sweep's last pose (a feed's machining pose) for every point
