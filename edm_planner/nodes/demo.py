@@ -142,14 +142,16 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0):
     import json
 
     import rclpy
-    from edm_planner_msgs.msg import AxisPoint
+    from edm_planner_msgs.msg import AxisPoint, BliskGeometry
     from edm_planner_msgs.srv import CheckInterference, ExecutePlan, LoadGeometry, PlanElectrodeSet
     from rclpy.executors import SingleThreadedExecutor
     from trajectory_msgs.msg import JointTrajectory
 
     from .. import plots
-    from ..geometry.loader import load_geometry
+    from ..geometry.frames import rotation_about_x
     from ..planning.export import read_plan
+    from .conversions import msg_to_mesh
+    from .geometry_loader import LATCHED
 
     share = pathlib.Path(sys.prefix) / "share" / "edm_planner" / "config"
     from rclpy.signals import SignalHandlerOptions
@@ -160,6 +162,9 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0):
     node = rclpy.create_node("edm_demo_cell_controller")
     received = []
     node.create_subscription(JointTrajectory, TRAJECTORY_TOPIC, received.append, 10)
+    geometries = {}           # the loader's latched geometry: the channel surfaces for the 3D view
+    node.create_subscription(BliskGeometry, "geometry",
+                             lambda m: geometries.__setitem__(m.summary.geometry_id, m), LATCHED)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     spinner = threading.Thread(target=executor.spin, daemon=True)
@@ -235,13 +240,21 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0):
             allc = np.vstack(list(clearances.values()))
             plots.clearance_plot(np.arange(len(allc)), allc, [margin] * 4, out_dir / "clearance.png",
                                  xlabel="cycle sample (" + ", then ".join(clearances) + ")")
-            g = load_geometry(share / "default_blisk.yaml")
+            deadline = time.monotonic() + 30.0
+            while geo.geometry_id not in geometries:          # latched: here already, or on its way
+                if time.monotonic() > deadline:
+                    raise RuntimeError("the geometry was not received on the latched 'geometry' topic")
+                time.sleep(0.05)
+            published = geometries[geo.geometry_id]
+            turn = rotation_about_x(channel * published.summary.blade_pitch)      # published: channel 0
+            surfaces = {label: msg_to_mesh(m).apply_transform(turn)
+                        for label, m in zip(published.surface_labels, published.surfaces)}
             stock_png = pathlib.Path(res.export_path) / "stock.png"
             for name in ("stock.png", "stock.glb"):           # the removal proof's pictures
                 if (stock_png.parent / name).exists():
                     shutil.copyfile(stock_png.parent / name, out_dir / name)
             export = read_plan(pathlib.Path(res.export_path) / label0)
-            plots.channel_view(g.blisk.channel_meshes(channel, resolution=1.0), export.electrode_mesh,
+            plots.channel_view(surfaces, export.electrode_mesh,
                                export.poses, out_dir / "channel.glb", out_dir / "channel.png")
         m = res.metrics
         print("\nSummary")

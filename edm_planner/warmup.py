@@ -1,0 +1,103 @@
+"""Compile every numba kernel once, into numba's on-disk cache, before parallel work starts.
+
+numba compiles a kernel on its first call in a process and caches it on disk
+(``cache=True``, ``NUMBA_CACHE_DIR``, see ``edm_planner/__init__.py``). The
+cache is keyed by the source file, so a fresh clone starts empty; processes
+started together (the nodes of ``make demo``, the set designer's workers,
+the test workers) would then each compile the same kernels at once. This
+module makes one process compile them all first, through the public API and
+the same argument types as real work: the default blisk's electrode design
+(spline kernels), a coarse distance field (fill and query kernels), the exact
+re-check of a few poses (branch and bound) and a small removal proof.
+
+``python -m edm_planner.warmup`` (``make setup`` runs it); a second run finds
+everything cached and takes a few seconds. No rclpy.
+"""
+
+import pathlib
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+CONFIG = pathlib.Path(__file__).resolve().parent.parent / "config"
+
+
+def _config_dir():
+    """The repository's config, or the installed share directory's."""
+    if (CONFIG / "default_blisk.yaml").exists():
+        return CONFIG
+    return pathlib.Path(sys.prefix) / "share" / "edm_planner" / "config"
+
+
+def warm_up(part=None, cache_dir=None, say=print):
+    """Run a small piece of every kind of work once; returns the seconds it took.
+
+    ``part`` 0 or 1 does half of it (run both at once in two processes with
+    one ``cache_dir``: part 0 builds the coarse field, part 1 loads it under
+    the field's build lock); None does all.
+    """
+    from .geometry.loader import load_geometry
+    from .interference.fast import FastChannelField
+    from .interference.plan_check import verify_poses
+    from .machining.removal import stock_at_points
+
+    t0 = time.perf_counter()
+    g = load_geometry(_config_dir() / "default_blisk.yaml")            # electrode design: spline kernels
+    e = g.electrodes[0]
+    vertices = np.asarray(e.mesh.vertices)[::50]
+    poses = np.repeat(e.final_pose[None], 3, axis=0)
+    poses[:, 0, 3] += np.array([0.0, 2.0, 40.0])                       # in the channel, and past the blades
+    world = vertices @ e.final_pose[:3, :3].T + e.final_pose[:3, 3]
+    if part in (None, 1):                                               # the removal proof's kernels
+        mesh = e.mesh
+        stock_at_points(world[:200], [(np.asarray(mesh.vertices), np.asarray(mesh.faces), poses[:2])], 0.1)
+    with tempfile.TemporaryDirectory() as tmp:
+        field = FastChannelField(g.blisk, spacing=0.6, cache_dir=cache_dir or tmp, cache_key="warm-up",
+                                 error_samples=300)
+    for channel in (0, 1):
+        if part in (None, 1):                                           # the queries
+            field.clearances(world, channel)
+            field.fast_path(world, channel)
+            field.exact_blade_distances(world[:20], channel)
+            field.pose_clearances(poses, vertices, channel)
+            field.posed_clearances(poses, vertices, channel)
+        if part in (None, 0):                                           # the exact solvers and the re-check
+            field.exact_blade_feet(world[:20], channel)
+            field.behind_walls(world[:20], channel)
+            field.exact_pose_clearances(poses[:1], vertices[:20], channel)
+    if part in (None, 0):
+        field.exact_profile_distances(world[:20])
+        verify_poses(poses[:2], vertices, 0, g.blisk, field)
+    spent = time.perf_counter() - t0
+    say(f"warm-up{'' if part is None else f' (part {part})'}: numba kernels compiled or loaded from "
+        f"the cache in {spent:.1f} s")
+    return spent
+
+
+def main(argv=None):
+    import argparse
+    import subprocess
+
+    parser = argparse.ArgumentParser(description="compile edm_planner's numba kernels into the cache")
+    parser.add_argument("--part", type=int, choices=(0, 1))
+    parser.add_argument("--cache-dir")
+    args = parser.parse_args(argv)
+    if args.part is not None:
+        warm_up(args.part, args.cache_dir)
+        return 0
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:                          # two processes, one field between them
+        procs = [subprocess.Popen([sys.executable, "-m", "edm_planner.warmup", "--part", str(p), "--cache-dir", tmp])
+                 for p in (0, 1)]
+        codes = [p.wait() for p in procs]
+    if any(codes):
+        print(f"warm-up failed (exit codes {codes})", file=sys.stderr)
+        return 1
+    print(f"warm-up: done in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
