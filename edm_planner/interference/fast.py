@@ -139,6 +139,15 @@ def _build_lock(path):
         os.close(fd)                     # closing releases the lock
 
 
+def _poses_and_points(poses, points, where):
+    """(P, 4, 4) poses and (M, 3) points, M >= 1, as contiguous float64 for the pose kernels."""
+    poses = np.ascontiguousarray(np.asanyarray(poses, dtype=np.float64).reshape(-1, 4, 4))
+    pts = np.ascontiguousarray(np.atleast_2d(np.asanyarray(points, dtype=np.float64)))
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
+        raise ValueError(f"{where}: points must be (M, 3) with M >= 1, got {pts.shape}")
+    return poses, pts
+
+
 def _axis(lo, hi, step, multiple):
     """Node count (a multiple of ``multiple`` intervals plus one) and spacing <= step covering [lo, hi]."""
     m = max(multiple, int(math.ceil((hi - lo) / step / multiple - 1e-9)) * multiple)
@@ -490,26 +499,12 @@ class FastChannelField:
         return _points_kernel(p, float(channel) * self.blisk.pitch, mode, *self._kernel_args(channel))
 
     def posed_clearances(self, poses, points, channel=0):
-        """The four clearances of every point under every pose: ``clearances`` of the posed points.
+        """(P, M, 4): the four clearances of every point under every pose [mm].
 
-        Parameters
-        ----------
-        poses : (P, 4, 4) float
-            Electrode frame -> W.
-        points : (M, 3) float
-            In the electrode frame [mm].
-        channel : int
-
-        Returns
-        -------
-        (P, M, 4) float
-            [mm], as ``clearances(points placed by each pose)``, computed in one
-            numba loop on all threads.
+        ``clearances`` of the points placed by each pose (parameters as
+        :meth:`pose_clearances`), in one numba loop on all threads.
         """
-        poses = np.ascontiguousarray(np.asanyarray(poses, dtype=np.float64).reshape(-1, 4, 4))
-        pts = np.ascontiguousarray(np.atleast_2d(np.asanyarray(points, dtype=np.float64)))
-        if pts.ndim != 2 or pts.shape[1] != 3:
-            raise ValueError(f"posed_clearances: points must be (M, 3), got {pts.shape}")
+        poses, pts = _poses_and_points(poses, points, "posed_clearances")
         return _posed_kernel(poses, pts, float(channel) * self.blisk.pitch, *self._kernel_args(channel))
 
     def pose_clearances(self, poses, points, channel=0):
@@ -533,10 +528,7 @@ class FastChannelField:
         argmin : (P, 4) int
             Index of the electrode point that attains it.
         """
-        poses = np.ascontiguousarray(np.asanyarray(poses, dtype=np.float64).reshape(-1, 4, 4))
-        pts = np.ascontiguousarray(np.atleast_2d(np.asanyarray(points, dtype=np.float64)))
-        if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
-            raise ValueError(f"pose_clearances: points must be (M, 3) with M >= 1, got {pts.shape}")
+        poses, pts = _poses_and_points(poses, points, "pose_clearances")
         return _pose_kernel(poses, pts, float(channel) * self.blisk.pitch, *self._kernel_args(channel))
 
     def exact_pose_clearances(self, poses, points, channel=0):

@@ -214,6 +214,22 @@ def _points_kernel(points, channel_angle, mode, flat, hs, fpt, ipt, fp, ip, slow
     return out
 
 
+@numba.njit(cache=True, inline="always")
+def _rows(poses, q):
+    """The top three rows of pose q as a 12-tuple (kept in registers over a loop of points)."""
+    return (poses[q, 0, 0], poses[q, 0, 1], poses[q, 0, 2], poses[q, 0, 3],
+            poses[q, 1, 0], poses[q, 1, 1], poses[q, 1, 2], poses[q, 1, 3],
+            poses[q, 2, 0], poses[q, 2, 1], poses[q, 2, 2], poses[q, 2, 3])
+
+
+@numba.njit(cache=True, inline="always")
+def _posed(m, ex, ey, ez):
+    """A point of the electrode frame placed by the pose rows ``m``."""
+    return (m[0] * ex + m[1] * ey + m[2] * ez + m[3],
+            m[4] * ex + m[5] * ey + m[6] * ez + m[7],
+            m[8] * ex + m[9] * ey + m[10] * ez + m[11])
+
+
 @numba.njit(cache=True, parallel=True)
 def _posed_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow):
     """(P, M, 4): the four clearances of every point under every pose, transform and lookup in one loop.
@@ -227,14 +243,9 @@ def _posed_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow
     for c in numba.prange(n_pose * per_pose):
         q, k0 = c // per_pose, (c % per_pose) * 256
         work = new_work()
-        m00, m01, m02, m03 = poses[q, 0, 0], poses[q, 0, 1], poses[q, 0, 2], poses[q, 0, 3]
-        m10, m11, m12, m13 = poses[q, 1, 0], poses[q, 1, 1], poses[q, 1, 2], poses[q, 1, 3]
-        m20, m21, m22, m23 = poses[q, 2, 0], poses[q, 2, 1], poses[q, 2, 2], poses[q, 2, 3]
+        m = _rows(poses, q)
         for k in range(k0, min(k0 + 256, n_pt)):
-            ex, ey, ez = points[k, 0], points[k, 1], points[k, 2]
-            x = m00 * ex + m01 * ey + m02 * ez + m03
-            y = m10 * ex + m11 * ey + m12 * ez + m13
-            z = m20 * ex + m21 * ey + m22 * ez + m23
+            x, y, z = _posed(m, points[k, 0], points[k, 1], points[k, 2])
             s, p, h, c_, ok = _fast_point(x, y, z, flat, hs, fpt, ipt)
             if not ok:
                 s, p, h, c_ = _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work)
@@ -264,16 +275,11 @@ def _pose_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow)
         for k0 in range(0, n_pt, 128):
             k1 = min(k0 + 128, n_pt)
             for q in range(q0, q1):
-                m00, m01, m02, m03 = poses[q, 0, 0], poses[q, 0, 1], poses[q, 0, 2], poses[q, 0, 3]
-                m10, m11, m12, m13 = poses[q, 1, 0], poses[q, 1, 1], poses[q, 1, 2], poses[q, 1, 3]
-                m20, m21, m22, m23 = poses[q, 2, 0], poses[q, 2, 1], poses[q, 2, 2], poses[q, 2, 3]
+                m = _rows(poses, q)
                 b0, b1, b2, b3 = best[q, 0], best[q, 1], best[q, 2], best[q, 3]
                 a0, a1, a2, a3 = arg[q, 0], arg[q, 1], arg[q, 2], arg[q, 3]
                 for k in range(k0, k1):
-                    ex, ey, ez = points[k, 0], points[k, 1], points[k, 2]
-                    x = m00 * ex + m01 * ey + m02 * ez + m03
-                    y = m10 * ex + m11 * ey + m12 * ez + m13
-                    z = m20 * ex + m21 * ey + m22 * ez + m23
+                    x, y, z = _posed(m, points[k, 0], points[k, 1], points[k, 2])
                     s, p, h, c, ok = _fast_point(x, y, z, flat, hs, fpt, ipt)
                     if not ok:
                         s, p, h, c = _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work)
