@@ -14,5 +14,9 @@ import sys as _sys
 # every process (nodes, the CLI, tests), so each kernel compiles once per machine and source version.
 # Set before any module of ours defines a kernel; a NUMBA_CACHE_DIR given by the caller wins.
 _os.environ.setdefault("NUMBA_CACHE_DIR", _os.path.join(_os.path.expanduser("~"), ".cache", "edm_planner", "numba"))
+# numba's parallel kernels run on OpenMP, whose idle threads spin by default: with several processes at once
+# (the nodes, the set designer's workers) spinning threads take the cores from the ones that work. Sleep
+# instead (read when the OpenMP runtime starts, i.e. at the first parallel kernel call).
+_os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 if "numba" in _sys.modules:          # imported before us: it read its configuration already
     _sys.modules["numba"].core.config.reload_config()

@@ -30,6 +30,17 @@ def pytest_configure(config):
                                        "make test-fast leaves them out)")
 
 
+#: the files that run longest, started first: with one file per worker (``--dist loadfile``, files handed
+#: out in collection order) a long file started last keeps one core busy alone at the end of the run
+LONG_FILES = ("test_demo.py", "test_electrode_set_node.py", "test_plan_export.py", "test_blisk_program.py",
+              "test_cycle_execution.py", "test_machining_cycle.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(LONG_FILES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(LONG_FILES)))      # stable: in-file order kept
+
+
 @pytest.fixture
 def ros():
     """Nodes in-process on a private context; see ros_harness.InProcessRos."""

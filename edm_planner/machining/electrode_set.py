@@ -539,9 +539,12 @@ def _start_worker(geometry_blob, spacing, field_cache, plan_options, options, cy
     """Worker process: the geometry, its field from the cache and a designer of its own."""
     import pickle
 
+    import numba
+
     from ..interference.fast import FastChannelField
 
     global _WORKER
+    numba.set_num_threads(1)             # the pool is the parallelism: one thread per worker process
     geometry = pickle.loads(geometry_blob)
     field = FastChannelField(geometry.blisk, spacing=spacing, cache_dir=field_cache[0], cache_key=field_cache[1])
     _WORKER = SetDesigner(geometry, field, plan_options, options, cycle_options)
