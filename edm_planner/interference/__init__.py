@@ -6,7 +6,13 @@
 * :mod:`.mesh_exact` -- exact triangle-mesh clearance of the electrode mesh
   (python-fcl), which also sees contact between sample points.
 * :mod:`.fast` -- a precomputed distance field for search, with a measured
-  error bound.
+  error bound (:class:`~.fast.FastChannelField`). Its numba kernels live by
+  concern: :mod:`.field_params` (the parameter layout they share),
+  :mod:`.field_build` (the grid fill), :mod:`.field_query` (per point and
+  per pose), :mod:`.exact_solvers` (the exact blade and profile solvers) and
+  :mod:`.min_search` (the exact minimum over a pose sequence).
+* :mod:`.plan_check` -- the exact re-check of a plan: every electrode vertex
+  at every sample (``verify_poses``, ``verify_exported_plan``).
 * :mod:`.criteria` -- the papers' criteria (Huang eq. 3 and the
   neighbour-angle test).
 * :mod:`.segment` -- continuous certification of a motion segment.

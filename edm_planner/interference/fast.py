@@ -60,6 +60,7 @@ Units: mm, rad. Frame W: X the blisk axis, theta = atan2(z, y).
 import contextlib
 import fcntl
 import hashlib
+import importlib
 import json
 import logging
 import math
@@ -86,6 +87,19 @@ from .field_build import _classify_coarse, _fill_coarse, _fill_fine, _fill_lines
 from .field_query import _exact_pose_kernel, _points_kernel, _pose_kernel, _posed_kernel
 
 _log = logging.getLogger(__name__)
+
+#: where the kernels that lived in this module before it was split by concern are now
+_KERNEL_MODULES = ("field_params", "exact_solvers", "field_build", "field_query", "min_search")
+
+
+def __getattr__(name):
+    """The kernels' old names stay importable from here (``fast._slow_point``, ``fast._min_search``, ...)."""
+    if not name.startswith("__"):
+        for module in _KERNEL_MODULES:
+            kernels = vars(importlib.import_module(f"{__package__}.{module}"))
+            if name in kernels:
+                return kernels[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _face_arrays(face):

@@ -90,7 +90,7 @@ def _behind_pairs(P, V, anchors, args, chunk_bytes=32_000_000):
     found = []
     for i in range(0, max(len(anchors) - 1, 1), step - 1):
         part = anchors[i:i + step]
-        sides = _search._anchor_sides(P, V, part, *args)                   # (anchors, M, 2)
+        sides = _search._anchor_sides(P, V, part, *args)                 # (anchors, M, 2)
         at, ak, af = np.nonzero(sides if i == 0 else sides[1:])          # each anchor once
         found.append((part[at + (i > 0)], ak, af))
         gap, k, face = np.nonzero(sides[:-1] | sides[1:] | (sides[:-1] != sides[1:]))
@@ -274,7 +274,7 @@ def verify_poses(poses, vertices, channel, blisk, field=None, *, threshold=0.0, 
     def search(s):
         mine = behind_f == s
         return _search._min_search(s, P, V, vtree[0], vtree[1], offset, vtree[2], vtree[3], *stree,
-                           behind_t[mine], behind_k[mine], seeds[mine], EXACT_TOLERANCE, *args)
+                                   behind_t[mine], behind_k[mine], seeds[mine], EXACT_TOLERANCE, *args)
 
     workers = max(1, min(len(SURFACES), int(threads or numba.get_num_threads())))
     with ThreadPoolExecutor(max_workers=workers) as pool:
