@@ -16,14 +16,17 @@ demo: setup
 	$(PY) -m edm_planner.nodes.demo --out out/demo
 
 # The whole suite, one pytest-xdist worker per core, each test file in one worker (its module
-# fixtures built once). PYTEST_ARGS adds options, e.g. PYTEST_ARGS=--durations=10.
+# fixtures built once), the files in the order of test/conftest.py (the longest first; xdist would
+# otherwise start the files with the most tests first). PYTEST_ARGS adds options, e.g.
+# PYTEST_ARGS=--durations=10.
 TEST_WORKERS ?= 2
+XDIST := -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 test: setup
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile $(PYTEST_ARGS) test
+	$(PY) -m pytest -q $(XDIST) $(PYTEST_ARGS) test
 
 # The inner loop: everything but the tests marked slow (whole-product runs, planning over DDS).
 test-fast: setup
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not slow" $(PYTEST_ARGS) test
+	$(PY) -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS) test
 
 bench: setup
 	$(PY) -m edm_planner.bench --out out/bench.json
