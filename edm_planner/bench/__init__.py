@@ -67,6 +67,55 @@ def _poses_near(final_pose, n, seed=0, spread=0.05):
     return poses
 
 
+def memory_figures(field, poses, pts):
+    """Why the field is memory bound: its grid's size, one core's throughput, and random loads.
+
+    A dependent random load (pointer chase) within 0.5 MB, 16 MB and the
+    grid's size, and independent random loads over the grid itself: a query
+    reads four cache lines of the grid, so uncached queries cannot beat a
+    quarter of the independent load rate.
+    """
+    import numba
+
+    @numba.njit
+    def chase(nxt, n):
+        i = 0
+        for _ in range(n):
+            i = nxt[i]
+        return i
+
+    @numba.njit
+    def gather(a, idx):
+        s = 0.0
+        for i in idx:
+            s += a[i]
+        return s
+
+    grid = field.kernel_args(0)[1]
+    out = {"fast_grid_mb": round(grid.nbytes / 1e6, 1)}
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        t = _best_of(lambda: field.pose_clearances(poses, pts))
+    finally:
+        numba.set_num_threads(threads)
+    out["fast_points_per_s_one_core"] = round(len(poses) * len(pts) / t)
+    rng = np.random.default_rng(0)
+    for mb in (0.5, 16, round(grid.nbytes / 1e6)):
+        n = int(mb * 1e6 / 8)
+        perm = rng.permutation(n)
+        nxt = np.empty(n, dtype=np.int64)
+        nxt[perm] = np.roll(perm, -1)
+        chase(nxt, 1000)
+        t = _best_of(lambda: chase(nxt, 2_000_000))
+        out[f"dependent_random_load_ns_{mb}mb"] = round(t / 2e6 * 1e9, 1)
+    idx = rng.integers(0, len(grid), 20_000_000)
+    gather(grid, idx[:10])
+    t = _best_of(lambda: gather(grid, idx))
+    out["independent_random_loads_per_s_over_grid"] = round(len(idx) / t)
+    return out
+
+
 def bench_interference():
     """Fast, exact, triangle-exact and trimesh clearances on the default blisk; service round trip."""
     import tempfile
@@ -96,6 +145,7 @@ def bench_interference():
     field.pose_clearances(poses[:2], pts)                      # JIT warm-up
     t = _best_of(lambda: field.pose_clearances(poses, pts))
     out["fast_points_per_s"] = round(len(poses) * len(pts) / t)
+    out.update(memory_figures(field, poses, pts))
     world = transform_points(poses[:1], pts)[0]
     checker = ChannelChecker(b, {"main": (e.mesh, e.final_pose)}, g.geometry_id, CheckerOptions())
     t = _best_of(lambda: checker.exact.clearances(world[:4000]), repeat=1)
