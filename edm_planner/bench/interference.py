@@ -38,10 +38,10 @@ import numba
 import numpy as np
 
 from ..interference import SURFACES
+from . import CONFIG
 from ..interference.exact_points import ExactChannelDistance
 from ..interference.fast import ACCURATE_WITHIN, FastChannelField
 
-CONFIG = pathlib.Path(__file__).resolve().parent.parent / "config"
 _log = logging.getLogger(__name__)
 
 
