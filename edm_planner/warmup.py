@@ -14,6 +14,7 @@ re-check of a few poses (branch and bound) and a small removal proof.
 everything cached and takes a few seconds. No rclpy.
 """
 
+import logging
 import pathlib
 import sys
 import tempfile
@@ -22,6 +23,7 @@ import time
 import numpy as np
 
 CONFIG = pathlib.Path(__file__).resolve().parent.parent / "config"
+_log = logging.getLogger(__name__)
 
 
 def _config_dir():
@@ -31,7 +33,7 @@ def _config_dir():
     return pathlib.Path(sys.prefix) / "share" / "edm_planner" / "config"
 
 
-def warm_up(part=None, cache_dir=None, say=print):
+def warm_up(part=None, cache_dir=None):
     """Run a small piece of every kind of work once; returns the seconds it took.
 
     ``part`` 0 or 1 does half of it (run both at once in two processes with
@@ -71,7 +73,7 @@ def warm_up(part=None, cache_dir=None, say=print):
         field.exact_profile_distances(world[:20])
         verify_poses(poses[:2], vertices, 0, g.blisk, field)
     spent = time.perf_counter() - t0
-    say(f"warm-up{'' if part is None else f' (part {part})'}: numba kernels compiled or loaded from "
+    _log.info(f"warm-up{'' if part is None else f' (part {part})'}: numba kernels compiled or loaded from "
         f"the cache in {spent:.1f} s")
     return spent
 
@@ -84,6 +86,7 @@ def main(argv=None):
     parser.add_argument("--part", type=int, choices=(0, 1))
     parser.add_argument("--cache-dir")
     args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stdout)
     if args.part is not None:
         warm_up(args.part, args.cache_dir)
         return 0
@@ -93,9 +96,9 @@ def main(argv=None):
                  for p in (0, 1)]
         codes = [p.wait() for p in procs]
     if any(codes):
-        print(f"warm-up failed (exit codes {codes})", file=sys.stderr)
+        _log.error("warm-up failed (exit codes %s)", codes)
         return 1
-    print(f"warm-up: done in {time.perf_counter() - t0:.1f} s")
+    _log.info("warm-up: done in %.1f s", time.perf_counter() - t0)
     return 0
 
 
