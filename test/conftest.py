@@ -32,8 +32,8 @@ def pytest_configure(config):
 
 #: the files that run longest, started first: with one file per worker (``--dist loadfile``, files handed
 #: out in collection order) a long file started last keeps one core busy alone at the end of the run
-LONG_FILES = ("test_demo.py", "test_electrode_set_node.py", "test_plan_export.py", "test_blisk_program.py",
-              "test_cycle_execution.py", "test_machining_cycle.py")
+LONG_FILES = ("test_demo.py", "test_electrode_set_node.py", "test_colcon_workspace.py", "test_plan_export.py",
+              "test_blisk_program.py", "test_cycle_execution.py", "test_machining_cycle.py")
 
 
 def pytest_collection_modifyitems(config, items):

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Bring .venv up to date: pinned dependencies, the ROS wheel fixes, the
-# interface package, edm_planner installed in the ament layout and its numba
-# kernels compiled into numba's cache.
+# pinned developer and test tools (colcon), the interface package,
+# edm_planner installed in the ament layout and its numba kernels compiled
+# into numba's cache.
 # Each step runs only when its inputs changed (stamps hold content hashes),
 # so a second run with nothing changed takes about a second.
 set -euo pipefail
@@ -32,6 +33,14 @@ if ! fresh deps "$h"; then
   pip_quiet install -r requirements.txt -c constraints.txt
   "$VENV/bin/python" tools/fix_ros_wheels.py
   stamp deps "$h"
+fi
+
+# developer and test tools (colcon), in the same venv: colcon builds with the Python that has the ROS wheels
+h=$(hash_of requirements-dev.txt constraints.txt)
+if ! fresh dev "$h"; then
+  echo "setup: installing the pinned developer and test tools (colcon, about 10 s)"
+  pip_quiet install -r requirements-dev.txt -c constraints.txt
+  stamp dev "$h"
 fi
 
 h=$(hash_of $(find msg_defs -type f | sort) requirements.txt)
