@@ -143,7 +143,7 @@ def _geometry(args, out):
         print(f"{args.file}: valid, geometry id {geometry.geometry_id}, {geometry.blisk.blade_count} blades, "
               f"electrodes {[e.electrode_id for e in geometry.electrodes]}", file=out)
         return 0
-    for key, value in geometry.summary().items():
+    for key, value in geometry.info().items():
         if isinstance(value, float):
             value = f"{value:.6g}"
         elif isinstance(value, list) and value and isinstance(value[0], float):

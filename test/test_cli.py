@@ -76,6 +76,24 @@ def test_geometry_validate_and_info(tmp_path):
     assert rc == ErrorCode.FILE_ERROR and "error: FILE_ERROR" in err
 
 
+def test_geometry_info_says_what_was_sliced_of_a_blade_mesh():
+    """The mesh blisk's STL reaches about 0.6 mm past hub and shroud: sliced to the 2 % wall overlap."""
+    rc, out, err = _run(["geometry", "info", str(CONFIG / "mesh_blisk.yaml")])
+    assert rc == 0 and "blade_source: mesh" in out
+    info = dict(line.split(": ", 1) for line in out.splitlines())
+    assert info["input_mesh_wall_overlap_mm"] == "0.372"               # 2 % of the 18.6 mm smallest height
+    assert info["input_mesh_clipped_to_hub"] == info["input_mesh_clipped_to_shroud"] == "all"
+    for key in ("axial_extent_mm", "radial_extent_mm", "sliced_axial_extent_mm", "sliced_hub_side_radius_mm",
+                "sliced_tip_side_radius_mm", "beyond_hub_mm", "beyond_shroud_mm"):
+        lo, hi = (float(v) for v in info[f"input_mesh_{key}"].strip("[]").split(", "))
+        assert lo <= hi, key
+    beyond = [float(v) for key in ("beyond_hub_mm", "beyond_shroud_mm")
+              for v in info[f"input_mesh_{key}"].strip("[]").split(", ")]
+    assert 0.5 < min(beyond) <= max(beyond) < 0.7
+    rc, out, err = _run(["geometry", "info", str(CONFIG / "rotor37.yaml")])
+    assert rc == 0 and "input_mesh_" not in out                         # blade sections: nothing sliced
+
+
 def test_failures_exit_with_their_error_code(setup, tmp_path):
     yaml, cache, _ = setup
     # margins above the 0.1 mm discharge gap: the electrode violates them at its machining pose

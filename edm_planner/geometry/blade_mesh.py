@@ -8,7 +8,9 @@
 * :func:`mesh_to_sections` converts a closed blade mesh into the internal
   :class:`~edm_planner.geometry.sections.BladeSections` form by exact slicing:
   every station (x0, r0) is the circle ``{(x0, r0 cos t, r0 sin t)}``, cut with
-  the mesh's cross-section in the plane ``x = x0``.
+  the mesh's cross-section in the plane ``x = x0``. Given the hub and shroud,
+  it slices only the span the channel needs (their wall overlap included), so
+  a CAD blade may run past the walls, closed by caps of any shape there.
 
 Units: millimetres and radians. Frame W: X is the blisk axis,
 ``theta = atan2(z, y)``.
@@ -41,6 +43,19 @@ _MAX_DIAGONAL = 10000.0
 
 #: relative tolerance for merging coincident vertices (times the bbox diagonal)
 _MERGE_REL = 1e-9
+
+#: deepest end zone of a cross-section taken for an end cap dipping into the blade and
+#: left out of the slicing, as a fraction of the blade's span (mesh_to_sections)
+_MAX_CAP_DEPTH = 0.05
+
+#: a face whose unit normal has a radial component of at least this is part of an end cap
+#: (mesh_to_sections)
+_CAP_NORMAL = 0.9
+
+#: a circle crossing into the blade through a face whose unit normal has a +theta
+#: component above this (or out of it through one below minus this) crosses faces
+#: the wrong way: the mesh intersects itself (mesh_to_sections)
+_CROSSED_FACES = 0.1
 
 
 class BladeFace(IntEnum):
@@ -364,6 +379,10 @@ class _Slicer:
         self.tri = np.ascontiguousarray(tri)
         self.xmin = tri[:, :, 0].min(axis=1)
         self.xmax = tri[:, :, 0].max(axis=1)
+        # unit face normals in the rotated frame (zero for degenerate triangles)
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        length = np.linalg.norm(n, axis=1)
+        self.normal = n / np.where(length > 0, length, 1.0)[:, None]
 
     def slice(self, x0):
         """Segments of the cross-sections at the planes ``x = x0``.
@@ -378,6 +397,8 @@ class _Slicer:
             Plane index of each segment.
         a, b : (N, 2) float
             End points of each segment in the rotated (y, z) plane [mm].
+        face : (N,) int
+            The mesh face each segment cuts.
         """
         x0 = np.asarray(x0, dtype=np.float64)
         order = np.argsort(x0, kind="stable")
@@ -402,7 +423,7 @@ class _Slicer:
         p0, p1, p2 = tri[rows, lone, 1:], tri[rows, k1, 1:], tri[rows, k2, 1:]
         a = p0 + (d0 / (d0 - d1))[:, None] * (p1 - p0)
         b = p0 + (d0 / (d0 - d2))[:, None] * (p2 - p0)
-        return plane, a, b
+        return plane, a, b, face
 
     def radial_range(self, x0):
         """Exact radial extent of the cross-sections.
@@ -417,20 +438,129 @@ class _Slicer:
             both its end points (chords across a cap) [mm].
         """
         x0 = np.asarray(x0, dtype=np.float64)
-        plane, a, b = self.slice(x0)
-        ab = b - a
-        length2 = np.einsum("ij,ij->i", ab, ab)
-        t = np.clip(-np.einsum("ij,ij->i", a, ab) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
-        closest = np.linalg.norm(a + t[:, None] * ab, axis=1)
-        ra, rb = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
-        far = np.maximum(ra, rb)
+        plane, closest, near, far = self._radial_intervals(x0)
         r_lo = np.full(len(x0), np.inf)
         r_hi = np.full(len(x0), -np.inf)
         dip = np.zeros(len(x0))
         np.minimum.at(r_lo, plane, closest)
         np.maximum.at(r_hi, plane, far)
-        np.maximum.at(dip, plane, np.minimum(ra, rb) - closest)
+        np.maximum.at(dip, plane, near - closest)
         return r_lo, r_hi, dip
+
+    def _radial_intervals(self, x0, with_normal=False):
+        """Per segment of the cross-sections: plane, closest, nearer-end and farther-end radius [mm].
+
+        With ``with_normal`` also the radial component of the unit normal of
+        the face each segment cuts (at the segment's middle).
+        """
+        plane, a, b, face = self.slice(x0)
+        ab = b - a
+        length2 = np.einsum("ij,ij->i", ab, ab)
+        t = np.clip(-np.einsum("ij,ij->i", a, ab) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+        closest = np.linalg.norm(a + t[:, None] * ab, axis=1)
+        ra, rb = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
+        out = (plane, closest, np.minimum(ra, rb), np.maximum(ra, rb))
+        if with_normal:
+            mid = 0.5 * (a + b)
+            e_r = mid / np.maximum(np.linalg.norm(mid, axis=1), 1e-300)[:, None]
+            out += (np.einsum("ij,ij->i", self.normal[face, 1:], e_r),)
+        return out
+
+    def end_caps(self, x0, cos_min):
+        """Radial range of the end caps of each plane's cross-section.
+
+        A cap segment cuts a face whose unit normal points along +r (tip
+        end, in the outer half of the cross-section's radial extent) or -r
+        (hub end, inner half) with a component of at least ``cos_min``.
+
+        Returns
+        -------
+        hub_cap_hi : (P,) float
+            Largest radius of the hub-end cap segments [mm] (-inf if none).
+        tip_cap_lo : (P,) float
+            Smallest radius (closest approach) of the tip-end cap segments [mm]
+            (inf if none).
+        """
+        x0 = np.asarray(x0, dtype=np.float64)
+        P = len(x0)
+        plane, closest, _, far, n_r = self._radial_intervals(x0, with_normal=True)
+        r_lo = np.full(P, np.inf)
+        r_hi = np.full(P, -np.inf)
+        np.minimum.at(r_lo, plane, closest)
+        np.maximum.at(r_hi, plane, far)
+        r_mid = 0.5 * (r_lo + r_hi)[plane]
+        hub_cap_hi = np.full(P, -np.inf)
+        tip_cap_lo = np.full(P, np.inf)
+        hub = (n_r <= -cos_min) & (far <= r_mid)
+        tip = (n_r >= cos_min) & (closest >= r_mid)
+        np.maximum.at(hub_cap_hi, plane[hub], far[hub])
+        np.minimum.at(tip_cap_lo, plane[tip], closest[tip])
+        return hub_cap_hi, tip_cap_lo
+
+    def single_interval_range(self, x0, tol):
+        """Radial range about mid-span in which every circle meets the cross-section exactly twice.
+
+        A circle of radius r crosses a segment once if r lies between the
+        radii of its end points, and twice if r lies between the segment's
+        closest approach to the axis and its nearer end point; summed over
+        the segments this gives the exact number of crossings n(r) of every
+        circle of the plane, piecewise constant in r.
+
+        Parameters
+        ----------
+        x0 : (P,) float
+        tol : float
+            Intervals of r shorter than this [mm] do not interrupt the range
+            (shared end points of segments).
+
+        Returns
+        -------
+        r_in_lo, r_in_hi : (P,) float
+            The range of r about the middle of the cross-section's radial
+            extent with n(r) == 2 [mm]; beyond it, towards either end, some
+            circles meet the cross-section more than twice (an end cap
+            dipping into the blade) or not at all. NaN where n != 2 at the
+            middle.
+        """
+        x0 = np.asarray(x0, dtype=np.float64)
+        P = len(x0)
+        r_in_lo = np.full(P, np.nan)
+        r_in_hi = np.full(P, np.nan)
+        plane, closest, near, far = self._radial_intervals(x0)
+        if len(plane) == 0:
+            return r_in_lo, r_in_hi
+        # events (plane, r, change of n): +1 at the nearer end, -1 at the farther end
+        # (one crossing in between), +2 at the closest approach, -2 at the nearer end
+        ev_plane = np.concatenate([plane, plane, plane, plane])
+        ev_r = np.concatenate([near, far, closest, near])
+        ev_dn = np.concatenate([np.ones_like(near), -np.ones_like(far),
+                                np.full_like(near, 2.0), np.full_like(near, -2.0)])
+        o = np.lexsort((ev_r, ev_plane))
+        ev_plane, ev_r = ev_plane[o], ev_r[o]
+        n = np.rint(np.cumsum(ev_dn[o]))       # n(r) just above each event; 0 after a plane's last one
+        # interval k = (r_k, r_k+1) of a plane; runs of consecutive good intervals
+        lo, hi = ev_r[:-1], ev_r[1:]
+        same = ev_plane[1:] == ev_plane[:-1]
+        good = same & ((n[:-1] == 2) | (hi - lo <= tol))
+        run = np.cumsum(~good)
+        r_mid = np.full(P, np.nan)
+        first = np.ones(len(ev_r), dtype=bool)
+        first[1:] = ~same
+        last = np.ones(len(ev_r), dtype=bool)
+        last[:-1] = ~same
+        r_mid[ev_plane[first]] = 0.5 * (ev_r[first] + ev_r[last])
+        k_mid = np.nonzero(same & (lo <= r_mid[ev_plane[:-1]]) & (r_mid[ev_plane[:-1]] < hi))[0]
+        k_mid = k_mid[good[k_mid]]
+        if len(k_mid) == 0:
+            return r_in_lo, r_in_hi
+        run_lo = np.full(run[-1] + 1, np.inf)
+        run_hi = np.full(run[-1] + 1, -np.inf)
+        np.minimum.at(run_lo, run[good], lo[good])
+        np.maximum.at(run_hi, run[good], hi[good])
+        pl = ev_plane[k_mid]
+        r_in_lo[pl] = run_lo[run[k_mid]]
+        r_in_hi[pl] = run_hi[run[k_mid]]
+        return r_in_lo, r_in_hi
 
     def hits(self, x0, r0):
         """Does the circle (x0, r0) meet the mesh? (P,) bool."""
@@ -454,11 +584,16 @@ class _Slicer:
         t_min, t_max : (P,) float
             Smallest and largest crossing angle (rotated frame) [rad], NaN
             where there is no crossing.
+        n_min, n_max : (P,) float
+            Component along +theta of the unit normal of the face crossed at
+            ``t_min`` and ``t_max`` (0 where there is no crossing). For an
+            outward-wound solid the circle enters at its first crossing
+            (``n_min < 0``) and leaves at its last (``n_max > 0``).
         """
         x0 = np.asarray(x0, dtype=np.float64)
         r0 = np.asarray(r0, dtype=np.float64)
         P = len(x0)
-        plane, a, b = self.slice(x0)
+        plane, a, b, face = self.slice(x0)
         ab = b - a
         qa = np.einsum("ij,ij->i", ab, ab)
         qb = 2.0 * np.einsum("ij,ij->i", a, ab)
@@ -471,18 +606,24 @@ class _Slicer:
         t1 = np.where(ok, q / np.where(qa > 0, qa, 1.0), np.nan)
         t2 = np.where(ok & (q != 0), qc / safe_q, t1)
         t = np.stack([t1, t2], axis=1)  # (N, 2)
-        valid = ok[:, None] & (t >= 0.0) & (t <= 1.0)
+        # a circle through a segment's end point is found on both segments that
+        # share it (then merged), whatever the rounding of the end point's radius
+        valid = ok[:, None] & (t >= -1e-9) & (t <= 1.0 + 1e-9)
         seg_idx, root = np.nonzero(valid)
         pts = a[seg_idx] + t[seg_idx, root, None] * ab[seg_idx]
         pl = plane[seg_idx]
         ang = np.arctan2(pts[:, 1], pts[:, 0])
+        nrm = self.normal[face[seg_idx]]
+        n_theta = np.cos(ang) * nrm[:, 2] - np.sin(ang) * nrm[:, 1]
         count = np.zeros(P, dtype=np.int64)
         t_min = np.full(P, np.nan)
         t_max = np.full(P, np.nan)
+        n_min = np.zeros(P)
+        n_max = np.zeros(P)
         if len(ang) == 0:
-            return count, t_min, t_max
+            return count, t_min, t_max, n_min, n_max
         o = np.lexsort((ang, pl))
-        pl, ang = pl[o], ang[o]
+        pl, ang, n_theta = pl[o], ang[o], n_theta[o]
         new = np.ones(len(ang), dtype=bool)
         new[1:] = (pl[1:] != pl[:-1]) | (np.diff(ang) * r0[pl[1:]] > merge_tol)
         np.add.at(count, pl[new], 1)
@@ -492,7 +633,9 @@ class _Slicer:
         last[:-1] = pl[1:] != pl[:-1]
         t_min[pl[first]] = ang[first]
         t_max[pl[last]] = ang[last]
-        return count, t_min, t_max
+        n_min[pl[first]] = n_theta[first]
+        n_max[pl[last]] = n_theta[last]
+        return count, t_min, t_max, n_min, n_max
 
 
 def _mean_angle(mesh):
@@ -502,8 +645,14 @@ def _mean_angle(mesh):
     return float(np.arctan2(np.sin(theta).sum(), np.cos(theta).sum()))
 
 
-def mesh_to_sections(mesh, n_sections=25, n_stations=81, *, span_margin=1e-3, edge_margin=1e-4,
-                     n_footprint=256, n_scan=81):
+def _station_count(flags):
+    """'all', 'none' or 'k of n' stations where ``flags`` holds."""
+    k, n = int(np.count_nonzero(flags)), len(flags)
+    return "all" if k == n else "none" if k == 0 else f"{k} of {n} stations"
+
+
+def mesh_to_sections(mesh, n_sections=25, n_stations=81, *, hub=None, shroud=None, overlap=None,
+                     span_margin=1e-3, edge_margin=1e-4, n_footprint=256, n_scan=81, with_report=False):
     """Convert a closed blade mesh into :class:`BladeSections` by exact slicing.
 
     Parameters
@@ -516,6 +665,18 @@ def mesh_to_sections(mesh, n_sections=25, n_stations=81, *, span_margin=1e-3, ed
     n_stations : int
         C, number of chord stations per section, leading to trailing edge
         (>= 4), cosine-clustered towards both edges.
+    hub, shroud : RevolutionProfile, optional
+        The walls the blade stands between (both or neither). With them the
+        blade is sliced only over the span the channel needs: the hub-side
+        bound is never below ``hub(x) - overlap`` and the tip-side bound
+        never above ``shroud(x) + overlap``, so a mesh that runs past the
+        walls (CAD blades often do, closed by caps of any shape) is sliced
+        inside them. A mesh that stops short is sliced to its own ends, as
+        without profiles (:class:`~.blisk.Blisk` then extends it).
+    overlap : float, optional
+        How far beyond the walls to slice [mm]; default
+        :func:`~.blisk.wall_overlap` (the overlap :class:`~.blisk.Blisk`
+        extends its blade by).
     span_margin : float
         Inset of the first and last section from the footprint's inner and
         outer radial bounds, as a fraction of the span (on top of the
@@ -528,6 +689,8 @@ def mesh_to_sections(mesh, n_sections=25, n_stations=81, *, span_margin=1e-3, ed
     n_scan : int
         Samples along each section line used to bracket the edges (then
         refined by bisection).
+    with_report : bool
+        Also return what was sliced.
 
     Returns
     -------
@@ -535,12 +698,26 @@ def mesh_to_sections(mesh, n_sections=25, n_stations=81, *, span_margin=1e-3, ed
         (S, C) stations; ``theta_minus``/``theta_plus`` are the smallest and
         largest angle at which the station's circle meets the mesh, unwrapped
         around the blade's mean angle.
+    report : dict, only with ``with_report``
+        Plain data, lengths in mm: ``axial_extent_mm`` and
+        ``radial_extent_mm`` (the mesh's own extent, [min, max]),
+        ``sliced_axial_extent_mm``, ``sliced_hub_side_radius_mm`` and
+        ``sliced_tip_side_radius_mm`` ([min, max] of the stations, of section
+        0 and S-1), and with profiles ``wall_overlap_mm``,
+        ``beyond_hub_mm`` / ``beyond_shroud_mm`` ([min, max] over
+        the hub-/tip-side stations of how far the mesh's own end reaches
+        beyond the wall; negative where it stops short) and
+        ``clipped_to_hub`` / ``clipped_to_shroud`` ('all', 'none' or
+        'k of n stations' sliced at the wall's bound instead of the mesh's
+        own end).
 
     Raises
     ------
     GeometryError
         Not a closed mesh, not a single blade (a circle meets the mesh in two
-        separate intervals), or no usable footprint.
+        separate intervals, or leaves it where it should enter it: faces
+        crossing), or no usable footprint; every such circle is named by its
+        x and r.
 
     Notes
     -----
@@ -548,10 +725,21 @@ def mesh_to_sections(mesh, n_sections=25, n_stations=81, *, span_margin=1e-3, ed
     from the exact radial extent ``[r_lo(x), r_hi(x)]`` of cross-sections at
     ``n_footprint`` planes. Its four corners (leading/trailing edge at
     hub/tip) split the lower bound into the hub-side curve and the upper
-    bound into the tip-side curve. Section j is the curve
-    ``(1 - f_j) H(u) + f_j T(u)`` between them (u the chord fraction along
-    each curve), extended linearly beyond u in [0, 1]; its leading and
-    trailing edge are found by bisection on "does the circle meet the mesh".
+    bound into the tip-side curve. Both are moved into the blade by 1.5 times
+    the depth of chords across the caps plus ``span_margin``, and past each
+    end zone -- the radial range of the end caps (faces whose normal is within
+    about 25 deg of -r at the hub end, +r at the tip end) and the range where
+    circles meet the cross-section other than twice (a flat cap dipping into
+    the blade between two points of its section), counted exactly from the
+    segments -- by ``span_margin``, if that zone is at most 5 % of the span
+    deep (a deeper one is no cap: the circles report it where they meet it).
+    With profiles the curves are then clipped to ``hub - overlap`` and
+    ``shroud + overlap``. Section j is the curve ``(1 - f_j) H(u) + f_j T(u)``
+    between them (u the chord fraction along each curve, H and T continued
+    linearly beyond u in [0, 1]); its leading and trailing edge are found by
+    bisection on "does the circle meet the mesh". Every station's circle must
+    meet the mesh exactly twice, entering it at the first crossing and leaving
+    it at the last.
     """
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise GeometryError("mesh_to_sections: expected a non-empty trimesh.Trimesh")
@@ -563,6 +751,16 @@ def mesh_to_sections(mesh, n_sections=25, n_stations=81, *, span_margin=1e-3, ed
     if not mesh.is_watertight:
         raise GeometryError(
             f"mesh_to_sections: blade mesh is not closed ({_count_open_edges(mesh)} open edges)")
+    if (hub is None) != (shroud is None):
+        raise GeometryError("mesh_to_sections: give both the hub and the shroud profile, or neither")
+    walls = hub is not None
+    if walls:
+        if overlap is None:
+            from .blisk import wall_overlap  # blisk imports this module
+            overlap = wall_overlap(hub, shroud)
+        overlap = float(overlap)
+        if not (np.isfinite(overlap) and overlap >= 0):
+            raise GeometryError(f"mesh_to_sections: overlap must be a finite length >= 0 mm, got {overlap!r}")
 
     theta0 = _mean_angle(mesh)
     slicer = _Slicer(mesh, theta0)
@@ -581,10 +779,13 @@ def mesh_to_sections(mesh, n_sections=25, n_stations=81, *, span_margin=1e-3, ed
         raise GeometryError("mesh_to_sections: the mesh has no axial extent")
     xf = xmin + (xmax - xmin) * (np.arange(n_footprint) + 0.5) / n_footprint
     r_lo, r_hi, dip = slicer.radial_range(xf)
+    in_lo, in_hi = slicer.single_interval_range(xf, merge_tol)
+    cap_lo, cap_hi = slicer.end_caps(xf, _CAP_NORMAL)
     good = np.isfinite(r_lo) & np.isfinite(r_hi)
     if np.count_nonzero(good) < 4:
         raise GeometryError("mesh_to_sections: no usable cross-sections of the mesh")
-    xf, r_lo, r_hi, dip = xf[good], r_lo[good], r_hi[good], dip[good]
+    xf, r_lo, r_hi, dip, in_lo, in_hi, cap_lo, cap_hi = (
+        a[good] for a in (xf, r_lo, r_hi, dip, in_lo, in_hi, cap_lo, cap_hi))
     rmin, rmax = float(r_lo.min()), float(r_hi.max())
     xn = (xf - xmin) / (xmax - xmin)
     rln = (r_lo - rmin) / (rmax - rmin)
@@ -597,47 +798,59 @@ def mesh_to_sections(mesh, n_sections=25, n_stations=81, *, span_margin=1e-3, ed
         raise GeometryError("mesh_to_sections: cannot identify the blade's hub and tip bounds in its footprint")
     span = float(np.median(r_hi - r_lo))
     inset = 1.5 * float(dip.max()) + span_margin * span
-    hub_x, hub_r = xf[i_a:i_b + 1], r_lo[i_a:i_b + 1] + inset
-    tip_x, tip_r = xf[i_d:i_c + 1], r_hi[i_d:i_c + 1] - inset
-    if np.any(np.interp(np.linspace(0, 1, 33), (tip_x - tip_x[0]) / (tip_x[-1] - tip_x[0]), tip_r)
-              <= np.interp(np.linspace(0, 1, 33), (hub_x - hub_x[0]) / (hub_x[-1] - hub_x[0]), hub_r)):
-        raise GeometryError("mesh_to_sections: the blade's footprint is too thin in span")
+    # end zones -- the radial range of faces looking along -r / +r (the caps) and where
+    # circles meet the cross-section other than twice (a cap dipping into the blade) --
+    # are left out if shallow; a deeper one is no cap (the circles report it if sliced)
+    zone_lo = np.fmax(cap_lo, in_lo)        # NaN in_lo (no single interval at mid-span): the cap alone
+    zone_hi = np.fmin(cap_hi, in_hi)
+    deep = _MAX_CAP_DEPTH * span
+    lo_own = np.maximum(r_lo + inset, np.where(zone_lo - r_lo <= deep, zone_lo + span_margin * span, -np.inf))
+    hi_own = np.minimum(r_hi - inset, np.where(r_hi - zone_hi <= deep, zone_hi - span_margin * span, np.inf))
+    hub_x, hub_r = xf[i_a:i_b + 1], lo_own[i_a:i_b + 1]
+    tip_x, tip_r = xf[i_d:i_c + 1], hi_own[i_d:i_c + 1]
 
-    f = np.linspace(0.0, 1.0, n_sections)
+    du = 1.0 / (n_footprint - 1)
+
+    def curve(side, uu):
+        """(x, r) of the hub-side (0) or tip-side (1) bound at chord parameters uu.
+
+        Linear in x along uu; r interpolated in [0, 1] and continued beyond with
+        the end slopes, then clipped to the walls.
+        """
+        cx, cr = (hub_x, hub_r) if side == 0 else (tip_x, tip_r)
+        uu = np.asarray(uu, dtype=np.float64)
+
+        def x_at(w):
+            return cx[0] + w * (cx[-1] - cx[0])
+
+        xx = x_at(uu)
+        rr = np.interp(x_at(np.clip(uu, 0.0, 1.0)), cx, cr)
+        for end, sign in ((0.0, 1.0), (1.0, -1.0)):
+            outside = (uu < 0) if end == 0.0 else (uu > 1)
+            if np.any(outside):
+                r0 = np.interp(x_at(end), cx, cr)
+                slope = (np.interp(x_at(end + sign * du), cx, cr) - r0) / (sign * du)
+                rr = np.where(outside, r0 + (uu - end) * slope, rr)
+        if walls:
+            rr = (np.maximum(rr, hub.radius_at(xx) - overlap) if side == 0
+                  else np.minimum(rr, shroud.radius_at(xx) + overlap))
+        return xx, rr
+
+    u_check = np.linspace(0, 1, 33)
+    if np.any(curve(1, u_check)[1] <= curve(0, u_check)[1]):
+        where = " between the hub and shroud profiles" if walls else ""
+        raise GeometryError(f"mesh_to_sections: the blade's footprint{where} is too thin in span")
+
+    f = np.linspace(0.0, 1.0, n_sections)[:, None]
 
     def section_points(u):
         """(x, r) of the section lines at chord parameters u, (S, U) each."""
         u = np.asarray(u, dtype=np.float64)
         if u.ndim == 1:
             u = np.broadcast_to(u, (n_sections, len(u)))
-        uc = np.clip(u, 0.0, 1.0)
-
-        def curve(cx, cr, uu):
-            xx = cx[0] + uu * (cx[-1] - cx[0])
-            return xx, np.interp(xx, cx, cr)
-
-        hx, hr = curve(hub_x, hub_r, uc)
-        tx, tr = curve(tip_x, tip_r, uc)
-        x = (1 - f[:, None]) * hx + f[:, None] * tx
-        r = (1 - f[:, None]) * hr + f[:, None] * tr
-        # linear continuation beyond the ends with the end slopes
-        du = 1.0 / (n_footprint - 1)
-        for end, sign in ((0.0, 1.0), (1.0, -1.0)):
-            outside = (u < 0) if end == 0.0 else (u > 1)
-            if not np.any(outside):
-                continue
-            e = np.full((n_sections, 1), end)
-            hx0, hr0 = curve(hub_x, hub_r, e)
-            tx0, tr0 = curve(tip_x, tip_r, e)
-            hx1, hr1 = curve(hub_x, hub_r, e + sign * du)
-            tx1, tr1 = curve(tip_x, tip_r, e + sign * du)
-            x0 = (1 - f[:, None]) * hx0 + f[:, None] * tx0
-            r0 = (1 - f[:, None]) * hr0 + f[:, None] * tr0
-            dx = ((1 - f[:, None]) * hx1 + f[:, None] * tx1 - x0) / (sign * du)
-            dr = ((1 - f[:, None]) * hr1 + f[:, None] * tr1 - r0) / (sign * du)
-            x = np.where(outside, x0 + (u - end) * dx, x)
-            r = np.where(outside, r0 + (u - end) * dr, r)
-        return x, r
+        hx, hr = curve(0, u)
+        tx, tr = curve(1, u)
+        return (1 - f) * hx + f * tx, (1 - f) * hr + f * tr
 
     # --- leading and trailing edge of every section ------------------------
     reach = 0.25
@@ -675,7 +888,7 @@ def mesh_to_sections(mesh, n_sections=25, n_stations=81, *, span_margin=1e-3, ed
     w = edge_margin + (1 - 2 * edge_margin) * 0.5 * (1 - np.cos(np.pi * k / (n_stations - 1)))
     u = u_le[:, None] + (u_te - u_le)[:, None] * w[None, :]
     x, r = section_points(u)
-    count, t_min, t_max = slicer.circle_angles(x.ravel(), r.ravel(), merge_tol)
+    count, t_min, t_max, n_min, n_max = slicer.circle_angles(x.ravel(), r.ravel(), merge_tol)
     count = count.reshape(x.shape)
     bad = count != 2
     if np.any(bad):
@@ -688,8 +901,43 @@ def mesh_to_sections(mesh, n_sections=25, n_stations=81, *, span_margin=1e-3, ed
         raise GeometryError(
             f"mesh_to_sections: the circle x={x[s, c]:.4f} mm, r={r[s, c]:.4f} mm (section {s}, "
             f"station {c}) meets the mesh {n} time(s) instead of twice")
+    # an outward-wound solid is entered at the first crossing and left at the last
+    sign = 1.0 if mesh.volume >= 0 else -1.0
+    crossed = ((sign * n_min > _CROSSED_FACES) | (sign * n_max < -_CROSSED_FACES)).reshape(x.shape)
+    if np.any(crossed):
+        s, c = (int(i) for i in np.argwhere(crossed)[0])
+        raise GeometryError(
+            f"mesh_to_sections: the circle x={x[s, c]:.4f} mm, r={r[s, c]:.4f} mm (section {s}, "
+            f"station {c}) leaves the mesh where it should enter it: its faces cross (a self-intersecting "
+            "mesh), not a single blade")
     theta_minus = theta0 + t_min.reshape(x.shape)
     theta_plus = theta0 + t_max.reshape(x.shape)
     _log.debug("mesh_to_sections: %d x %d stations, x %.4g..%.4g mm, r %.4g..%.4g mm",
                n_sections, n_stations, x.min(), x.max(), r.min(), r.max())
-    return BladeSections(x=x, r=r, theta_minus=theta_minus, theta_plus=theta_plus)
+    sections = BladeSections(x=x, r=r, theta_minus=theta_minus, theta_plus=theta_plus)
+    if not with_report:
+        return sections
+
+    def extent(a):
+        return [float(np.min(a)), float(np.max(a))]
+
+    report = {
+        "axial_extent_mm": [xmin, xmax],
+        "radial_extent_mm": [rmin, rmax],
+        "sliced_axial_extent_mm": extent(x),
+        "sliced_hub_side_radius_mm": extent(r[0]),
+        "sliced_tip_side_radius_mm": extent(r[-1]),
+    }
+    if walls:
+        # the mesh's own ends (no inset) at the hub-side and tip-side stations
+        own_hub = np.interp(x[0], hub_x, r_lo[i_a:i_b + 1])
+        own_tip = np.interp(x[-1], tip_x, r_hi[i_d:i_c + 1])
+        hub_r0, shroud_r1 = hub.radius_at(x[0]), shroud.radius_at(x[-1])
+        report.update({
+            "wall_overlap_mm": overlap,
+            "beyond_hub_mm": extent(hub_r0 - own_hub),
+            "beyond_shroud_mm": extent(own_tip - shroud_r1),
+            "clipped_to_hub": _station_count(r[0] <= hub_r0 - overlap + 1e-9 * span),
+            "clipped_to_shroud": _station_count(r[-1] >= shroud_r1 + overlap - 1e-9 * span),
+        })
+    return sections, report

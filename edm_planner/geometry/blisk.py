@@ -27,6 +27,29 @@ from .surfaces import BladeFace
 #: labels of the channel surfaces, in the order used by every interface
 CHANNEL_SURFACES = ("suction", "pressure", "hub", "shroud")
 MODEL_FORMAT = "edm_planner.geometry/1"
+#: how far the blade reaches into the hub and the shroud (:func:`extend_to_walls`), as a
+#: fraction of the smallest channel height; see :func:`wall_overlap`
+WALL_OVERLAP_FRACTION = 0.02
+
+
+def channel_height_range(hub, shroud):
+    """(min, max) of shroud minus hub radius over the profiles' common x range [mm]."""
+    lo = max(hub.x_range[0], shroud.x_range[0])
+    hi = min(hub.x_range[1], shroud.x_range[1])
+    xs = np.linspace(lo, hi, 400)
+    h = shroud.radius_at(xs) - hub.radius_at(xs)
+    return float(h.min()), float(h.max())
+
+
+def wall_overlap(hub, shroud):
+    """How far blade sections reach into the hub and the shroud [mm].
+
+    ``WALL_OVERLAP_FRACTION`` of the smallest channel height: :class:`Blisk`
+    extends its blade this far into both walls, and
+    :func:`~.blade_mesh.mesh_to_sections` slices a blade mesh up to this far
+    beyond them (one rule, so the two cannot drift apart).
+    """
+    return WALL_OVERLAP_FRACTION * channel_height_range(hub, shroud)[0]
 
 
 def extend_to_walls(sections, hub, shroud, overlap):
@@ -133,8 +156,8 @@ class Blisk:
             raise GeometryError(f"blade_count: must be an integer >= 2, got {n!r}")
         object.__setattr__(self, "blade_count", int(n))
         validate_profiles(self.hub, self.shroud)
-        height = self.channel_height_range[0]
-        object.__setattr__(self, "blade", extend_to_walls(self.blade, self.hub, self.shroud, 0.02 * height))
+        overlap = wall_overlap(self.hub, self.shroud)
+        object.__setattr__(self, "blade", extend_to_walls(self.blade, self.hub, self.shroud, overlap))
         self._validate_blade()
 
     # -- validation -----------------------------------------------------------
@@ -174,11 +197,7 @@ class Blisk:
     @property
     def channel_height_range(self):
         """(min, max) of shroud minus hub radius over the profiles' common range [mm]."""
-        lo = max(self.hub.x_range[0], self.shroud.x_range[0])
-        hi = min(self.hub.x_range[1], self.shroud.x_range[1])
-        xs = np.linspace(lo, hi, 400)
-        h = self.shroud.radius_at(xs) - self.hub.radius_at(xs)
-        return float(h.min()), float(h.max())
+        return channel_height_range(self.hub, self.shroud)
 
     @property
     def full_span_axial_range(self):

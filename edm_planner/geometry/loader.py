@@ -9,11 +9,16 @@ YAML schema (mm, rad; file paths relative to the YAML's directory)::
     blade:                                # exactly one of parametric / sections / mesh
       parametric: {...}                   # see edm_planner.geometry.parametric
       sections: {file: F, format: nasa_table | csv, length_unit: mm}
-      mesh: {file: F, length_unit: mm, section_count: 25, station_count: 81}
+      mesh: F                             # or {file: F, length_unit: mm, section_count: 25, station_count: 81}
       knot_rule: chord                    # optional: chord (default) | paper (Liu 2024 eq. 15)
     electrode: {...}                      # optional, see ElectrodeDesign
 
 A document holding only the blisk keys loads with the default electrode design.
+A blade mesh is sliced only over the span the channel needs (hub to shroud
+plus the overlap the blisk extends its blade by, see ``blisk.wall_overlap``),
+so it may run past the walls and be closed there by caps of any shape outside
+that span; what was sliced is in :meth:`LoadedGeometry.info` (``edm-plan
+geometry info``).
 """
 
 import collections
@@ -29,7 +34,7 @@ import yaml
 
 from ..errors import GeometryError, GeometryFileError
 from .blade_mesh import load_blade_mesh, mesh_to_sections
-from .blisk import Blisk, validate_profiles
+from .blisk import Blisk, validate_profiles, wall_overlap
 from .centerline import channel_centerline
 from .electrode import ElectrodeDesign, design_electrodes
 from .parametric import parse_parametric
@@ -90,6 +95,8 @@ class LoadedGeometry:
     _summary: dict = field(default=None, repr=False)
     #: the file has an ``electrode:`` section; without one the planner designs the electrode set itself
     design_given: bool = True
+    #: what was sliced of a blade mesh (the report of ``mesh_to_sections``), None for other sources
+    blade_slicing: dict = None
 
     def electrode(self, electrode_id=""):
         """The electrode with this id ('' for the first)."""
@@ -129,6 +136,22 @@ class LoadedGeometry:
             }
         return dict(self._summary)
 
+    def info(self):
+        """:meth:`summary` and, for a blade given as a mesh, what was sliced of it.
+
+        The extra ``input_mesh_*`` keys (lengths in mm; not fields of
+        GeometrySummary.msg, and not to be confused with ``blade_mesh_*``,
+        the blisk's own blade mesh re-sampled from its faces) are the report
+        of :func:`~.blade_mesh.mesh_to_sections`: the input mesh's axial and
+        radial extent, how far it reaches beyond hub and shroud, the wall
+        overlap, the span actually sliced and whether it was clipped to the
+        walls.
+        """
+        out = self.summary()
+        for key, value in (self.blade_slicing or {}).items():
+            out[f"input_mesh_{key}"] = value
+        return out
+
 
 def _profile(spec, name, files):
     if isinstance(spec, dict):
@@ -164,17 +187,20 @@ def _blade(spec, hub, shroud, files):
     source = given[0]
     sub = spec[source]
     if source == "parametric":
-        return parse_parametric(sub, hub, shroud), source
+        return parse_parametric(sub, hub, shroud), source, None
+    if source == "mesh" and isinstance(sub, str):
+        sub = {"file": sub}                 # mesh: FILE, the short form
     if not isinstance(sub, dict):
-        raise GeometryError(f"blade.{source}: expected a mapping with a 'file' key")
+        form = "a file name or " if source == "mesh" else ""
+        raise GeometryError(f"blade.{source}: expected {form}a mapping with a 'file' key")
     if source == "sections":
         _known(sub, {"file", "format", "length_unit"}, "blade.sections")
         path = files.resolve(sub.get("file"), "blade.sections.file")
         fmt = sub.get("format", "csv")
         if fmt == "nasa_table":
-            return read_nasa_table(path, sub.get("length_unit", "cm")), source
+            return read_nasa_table(path, sub.get("length_unit", "cm")), source, None
         if fmt == "csv":
-            return read_sections_csv(path, sub.get("length_unit", "mm")), source
+            return read_sections_csv(path, sub.get("length_unit", "mm")), source, None
         raise GeometryError(f"blade.sections.format: must be 'nasa_table' or 'csv', got {fmt!r}")
     _known(sub, {"file", "length_unit", "section_count", "station_count"}, "blade.mesh")
     path = files.resolve(sub.get("file"), "blade.mesh.file")
@@ -188,7 +214,10 @@ def _blade(spec, hub, shroud, files):
         if isinstance(v, bool) or not isinstance(v, int) or v < lo or v > 1000:
             raise GeometryError(f"blade.mesh.{key}: must be an integer in {lo} .. 1000, got {v!r}")
         counts[key] = v
-    return mesh_to_sections(mesh, counts["section_count"], counts["station_count"]), source
+    sections, report = mesh_to_sections(mesh, counts["section_count"], counts["station_count"],
+                                        hub=hub, shroud=shroud, overlap=wall_overlap(hub, shroud),
+                                        with_report=True)
+    return sections, source, report
 
 
 def parse_document(text, where="geometry"):
@@ -215,7 +244,7 @@ def build_geometry(doc, files, source=""):
     hub = _profile(doc["hub_profile"], "hub_profile", files)
     shroud = _profile(doc["shroud_profile"], "shroud_profile", files)
     validate_profiles(hub, shroud)      # units first: a blade in metres fails confusingly otherwise
-    blade, blade_source = _blade(doc["blade"], hub, shroud, files)
+    blade, blade_source, slicing = _blade(doc["blade"], hub, shroud, files)
     knot_rule = doc["blade"].get("knot_rule", "chord")
     if knot_rule not in ("chord", "paper"):
         raise GeometryError(f"blade.knot_rule: must be 'chord' or 'paper', got {knot_rule!r}")
@@ -229,7 +258,7 @@ def build_geometry(doc, files, source=""):
     for fname, h in files.hashes:
         digest.update(f"\0{fname}\0{h}".encode())
     return LoadedGeometry(digest.hexdigest(), blisk, design, electrodes, source,
-                          design_given=doc.get("electrode") is not None)
+                          design_given=doc.get("electrode") is not None, blade_slicing=slicing)
 
 
 class GeometryMemo:
