@@ -42,8 +42,11 @@ def axis_curves(x, values, axis_names, path, xlabel, title, marks=()):
     return path
 
 
-def clearance_plot(x, clearances, margins, path, xlabel="sample (feed order)"):
-    """Per-surface clearance (n, 4) along the path with the margins; written to ``path`` (PNG)."""
+def clearance_plot(x, clearances, margins, path, kind, xlabel="sample (feed order)"):
+    """Per-surface clearance (n, 4) along the path with the margins; written to ``path`` (PNG).
+
+    ``kind`` says what the values are, e.g. "fast values, exact within +-3.5 um" (in the title).
+    """
     clearances = np.asarray(clearances)
     fig, ax = plt.subplots(figsize=(8, 4))
     for j, name in enumerate(SURFACES):
@@ -54,7 +57,7 @@ def clearance_plot(x, clearances, margins, path, xlabel="sample (feed order)"):
     ax.set_xlabel(xlabel)
     ax.legend(loc="upper right")
     ax.grid(alpha=0.3, which="both")
-    ax.set_title("Smallest clearance of the electrode to each channel surface")
+    ax.set_title(f"Smallest clearance of the electrode to each channel surface\n({kind})", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -134,6 +134,6 @@ def rear_cycle(default_geometry, default_field):
     plan = plan_channel(g, 0, "rear", opts, field=field, design=design, electrodes=[electrode])
     assert plan.success, plan.message
     builder = CycleBuilder(field, electrode, design, plan.axis_names, CycleOptions(tolerance=REAR_TOLERANCE))
-    plan.cycle = builder.build(plan.samples, margin, plan.metrics.min_clearance)
+    plan.cycle = builder.build(plan.samples, margin, plan.metrics.clearance_lower_bound)
     assert plan.cycle.certified, plan.cycle.message
     return g, field, electrode, design, plan, builder

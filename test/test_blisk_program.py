@@ -72,7 +72,7 @@ def test_a_plan_with_its_cycle_round_trips_bit_for_bit(rear, tmp_path):
     assert [(leg.phase, leg.label) for leg in c1.legs] == [(leg.phase, leg.label) for leg in c0.legs]
     for a, b in zip(c0.legs, c1.legs):
         assert a.samples.tobytes() == b.samples.tobytes()
-        np.testing.assert_array_equal(a.min_clearance, b.min_clearance)
+        np.testing.assert_array_equal(a.clearance_lower_bound, b.clearance_lower_bound)
     assert c1.reach.to_dict() == c0.reach.to_dict()
     assert (c1.margin, c1.certified, c1.message) == (c0.margin, c0.certified, c0.message)
     assert c1.samples.tobytes() == c0.samples.tobytes() and c1.leg_ranges == c0.leg_ranges

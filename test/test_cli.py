@@ -38,7 +38,12 @@ def test_plan_writes_a_certified_export_that_passes_the_exact_recheck(setup):
     rc, out, err = _run(["plan", "--geometry", str(yaml), "--channel", "3", "--out", str(d / "plan"),
                          "--cache-dir", cache] + REAR)
     assert rc == 0, err
-    assert "channel 3, electrode rear" in out and "min clearance [mm]: suction" in out
+    assert "channel 3, electrode rear" in out
+    lower = out.split("certified lower bound over the path [mm]:")[1].split("\n")[0]
+    exact = out.split("exact minimum over every vertex at every sample [mm]:")[1].split("\n")[0]
+    lower = [float(v) for v in lower.replace(",", " ").split()[1::2]]
+    exact = [float(v) for v in exact.replace(",", " ").split()[1::2]]
+    assert len(lower) == len(exact) == 4 and all(0.02 <= lo <= ex for lo, ex in zip(lower, exact)), out
     assert "search" in err and "certified" in err          # progress lines on stderr
     g = load_geometry(yaml)
     plan = read_plan(d / "plan")
@@ -51,8 +56,11 @@ def test_plan_writes_a_certified_export_that_passes_the_exact_recheck(setup):
     rc, out, err = _run(["check", str(d / "plan"), "--geometry", str(yaml), "--threshold", "0.019"])
     assert rc == 0, err
     assert "passed" in out
-    clear = dict(part.split() for part in out.split("min clearance [mm]: ")[1].split("\n")[0].split(", "))
+    clear = dict(part.split() for part in
+                 out.split("exact minimum over every vertex at every sample [mm]: ")[1].split("\n")[0].split(", "))
     assert min(float(v) for v in clear.values()) >= 0.019 and float(clear["hub"]) == pytest.approx(0.1, abs=2e-3)
+    # the re-check of the export finds the exact minimum the plan reported
+    assert [float(clear[s]) for s in ("suction", "pressure", "hub", "shroud")] == exact
     step = float(out.split("largest vertex step ")[1].split()[0])
     assert step <= 0.05
     # edm-plan plot: pictures of the export

@@ -247,7 +247,7 @@ def test_channel_plan_message_carries_the_cycle_and_the_machining_figures(bridge
     assert list(msg.leg_last) == [b for _, _, _, b in plan.cycle.leg_ranges]
     for a, b in zip(cycle.legs, plan.cycle.legs):
         assert a.samples.tobytes() == b.samples.tobytes()
-        np.testing.assert_array_equal(a.min_clearance, b.min_clearance)
+        np.testing.assert_array_equal(a.clearance_lower_bound, b.clearance_lower_bound)
     assert list(msg.cycle_path.axis_names) == list(plan.axis_names)
     assert msg.cycle_certified and msg.cycle_margin == pytest.approx(MARGIN) and msg.set_id == "set-a"
     m = msg.metrics

@@ -40,8 +40,17 @@ def test_demo_runs_end_to_end_and_writes_its_pictures(tmp_path):
     assert run.returncode == 0, run.stdout + run.stderr
     text = run.stdout
     for word in ("LoadGeometry", "PlanElectrodeSet", "ExecutePlan", "CheckInterference", "Summary",
-                 "min clearance", "stock left", "all nodes stopped"):
+                 "certified lower bound, whole path", "exact minimum, vertices at samples", "stock left",
+                 "all nodes stopped"):
         assert word in text
+    # per electrode, side by side: the certified lower bound never above the exact minimum, surface by surface
+    lines = text.splitlines()
+    rows = [i for i, line in enumerate(lines) if "certified lower bound, whole path" in line]
+    assert rows
+    for i in rows:
+        lower = [float(v) for v in lines[i].split("whole path")[1].split()]
+        exact = [float(v) for v in lines[i + 1].split("vertices at samples")[1].split()]
+        assert len(lower) == len(exact) == 4 and all(lo <= ex for lo, ex in zip(lower, exact)), lines[i:i + 2]
     for name in ("axes_vs_time.png", "axes_vs_index.png", "clearance.png", "channel.png", "channel.glb",
                  "stock.png"):
         assert (out / name).stat().st_size > 10_000, name

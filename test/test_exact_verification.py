@@ -135,7 +135,7 @@ def test_verify_poses_is_the_minimum_over_every_pose_and_vertex(default, field):
                             near(e.final_pose, 2, seed=2, shift=0.15), shifted(e.final_pose, [-25.0, 0, 0])[None]])
     check = verify_poses(poses, pts, 0, default.blisk, field)
     per_pose, arg, _ = field.exact_pose_clearances(poses, pts)        # exact per pose (tested against brute force)
-    got = np.array([check.min_clearance[s] for s in ("suction", "pressure", "hub", "shroud")])
+    got = np.array([check.clearance_exact[s] for s in ("suction", "pressure", "hub", "shroud")])
     np.testing.assert_allclose(got, per_pose.min(axis=0), rtol=0, atol=1e-12)
     for j, s in enumerate(("suction", "pressure", "hub", "shroud")):
         t, k = check.argmin[s]

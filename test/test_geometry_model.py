@@ -220,12 +220,15 @@ def test_mesh_blisk_loads_and_matches_the_default(default, mesh_geo):
     assert s["blade_source"] == "mesh" and mesh_geo.blisk.blade.shape == (25, 81)
     assert s["blade_count"] == 60
     assert s["geometry_id"] != d["geometry_id"]
+    # figures over the blade's whole extent depend on how far it runs into hub and shroud: the parametric
+    # blade 3 % of the channel height, the STL's sliced to the model's 2 % overlap (issue 14); within the
+    # channel the two agree to the faceting
     for key in ("hub_radius_min", "hub_radius_max", "shroud_radius_min", "shroud_radius_max"):
-        assert s[key] == pytest.approx(d[key], abs=2e-3), key
+        assert s[key] == pytest.approx(d[key], abs=5e-3), key
     for key in ("axial_min", "axial_max", "max_blade_thickness"):
-        assert s[key] == pytest.approx(d[key], abs=0.01), key
-    assert s["min_channel_width"] == pytest.approx(d["min_channel_width"], abs=0.05)
-    assert s["electrode_volume"][0] == pytest.approx(d["electrode_volume"][0], rel=1e-3)
+        assert s[key] == pytest.approx(d[key], abs=0.03), key
+    assert s["min_channel_width"] == pytest.approx(d["min_channel_width"], abs=0.005)
+    assert s["electrode_volume"][0] == pytest.approx(d["electrode_volume"][0], rel=3e-3)
 
 
 def test_mesh_stl_faceting_bounds_the_wall_angle_error(default, mesh_geo):

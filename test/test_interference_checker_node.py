@@ -66,12 +66,15 @@ def test_final_pose_keeps_the_discharge_gap_exact_and_fast(system):
     # every electrode vertex sits at the gap from the blade faces (exactly) and the hub/shroud (to 3 um)
     np.testing.assert_allclose(c, GAP, atol=3e-6)
     assert not exact.clearances[0].colliding and exact.error_bound == 0.0
+    assert exact.clearance_kind == CheckInterference.Response.CLEARANCE_EXACT and "clearances exact" in exact.message
     pairs = exact.clearances[0]
     for e, s, d in zip(pairs.electrode_points, pairs.surface_points, c):
         assert np.hypot(np.hypot(e.x - s.x, e.y - s.y), e.z - s.z) == pytest.approx(d, abs=1e-6)
     fast = call(system, [final], method=CheckInterference.Request.METHOD_FAST)
     assert fast.error_code.val == ErrorCode.SUCCESS, fast.message
     assert 0 < fast.error_bound <= 0.005
+    assert fast.clearance_kind == CheckInterference.Response.CLEARANCE_WITHIN_ERROR_BOUND
+    assert f"exact within +-{fast.error_bound * 1e3:.1f} um" in fast.message
     np.testing.assert_allclose(clearances(fast)[0], c, atol=fast.error_bound)
 
 
@@ -82,8 +85,10 @@ def test_mesh_and_paper_methods(system):
     c = clearances(mesh)[0]
     # the triangles stay within the electrode's chord tolerance (5 um) of the gap, plus the wall faceting
     assert np.all(c > GAP - 0.005 - mesh.error_bound) and np.all(c <= GAP + 1e-6)
+    assert mesh.clearance_kind == CheckInterference.Response.CLEARANCE_WITHIN_ERROR_BOUND
     paper = call(system, [final], method=CheckInterference.Request.METHOD_PAPER_CRITERIA)
     assert paper.error_code.val == ErrorCode.SUCCESS and not paper.clearances[0].colliding
+    assert paper.clearance_kind == CheckInterference.Response.CLEARANCE_NONE and np.isnan(clearances(paper)).all()
     pushed = final.copy()
     pushed[:3, 3] = rotation_about_x(-0.012)[:3, :3] @ pushed[:3, 3]      # ~1.3 mm into the suction blade
     assert call(system, [pushed], method=CheckInterference.Request.METHOD_PAPER_CRITERIA).clearances[0].colliding

@@ -58,7 +58,7 @@ def test_the_cycle_runs_every_phase_in_order_and_is_certified(rear):
     outwards = np.sign(plan.samples[0][0] - plan.samples[-1][0])
     assert outwards * (samples[0][0] - plan.samples[0][0]) > 0
     # every process leg keeps the machining margin (certified lower bound)
-    assert np.all(cycle.min_clearance("process") >= MARGIN)
+    assert np.all(cycle.clearance_lower_bound("process") >= MARGIN)
 
 
 def test_copy_processing_rotates_each_side_face_onto_its_wall_gap(rear):

@@ -48,7 +48,7 @@ def planned(tmp_path_factory, default_geometry, default_field):
     dense = _dense(rear, feed, opts.sample_spacing)
     pos, a, c = dense[:, :3], dense[:, 3], dense[:, 4]
     metrics = PlanMetrics(node_count=len(feed), path_length=float(np.linalg.norm(np.diff(pos, axis=0), axis=1).sum()),
-                          min_clearance=tuple(res.clearances.min(axis=0)), objfun1=res.objfun1,
+                          clearance_lower_bound=tuple(res.clearances.min(axis=0)), objfun1=res.objfun1,
                           objfun2=res.objfun2, axis_names=AXIS_NAMES[5], solver_evaluations=res.evaluations,
                           planning_time=res.elapsed, certified=True, circumferential_reduction=0.045)
     plan = Plan(plan_id="test-plan-1", error_code=ErrorCode.SUCCESS, message="ok", geometry_id=g.geometry_id,
@@ -84,7 +84,7 @@ def test_round_trip_keeps_every_number(planned):
     assert s["search"]["step"] == 0.2 and s["search"]["exit_side"] == "downstream"
     assert s["search"]["weights"]["margin"] == [0.5, 0.25, 0.25] and s["sample_spacing"] == 0.05
     assert doc["metrics"]["node_count"] == len(plan.nodes) > 20
-    assert set(doc["metrics"]["min_clearance"]) == set(SURFACES)
+    assert set(doc["metrics"]["clearance_lower_bound"]) == set(SURFACES)
 
     r = read_plan(out)
     assert r.success and r.axis_names == AXIS_NAMES[5] and len(r.axes) == len(plan.samples) > 100
@@ -130,7 +130,7 @@ def test_exported_files_pass_the_exact_recheck(planned, field):
     assert check.max_vertex_step <= 0.05 and check.axes_pose_error < 1e-9 and check.start_outside
     # the search keeps 0.02 mm margins at its nodes (less the field bound on sampled points); between nodes
     # the linear interpolation of this test keeps them to within a few hundredths
-    mins = check.min_clearance
+    mins = check.clearance_exact
     assert min(mins["suction"], mins["pressure"]) > 0.0
     # at the final pose the electrode is the channel shrunk by the 0.1 mm discharge gap: hub 0.1 mm
     assert mins["hub"] == pytest.approx(0.1, abs=2e-3)
@@ -159,10 +159,10 @@ def test_minima_equal_a_brute_force_over_every_sample_and_vertex(planned, field)
     for part in (plan.poses[max(j - 40, 0):j + 40], plan.poses[-60:]):
         check = verify_poses(part, V, 0, g.blisk, field)
         every = brute_force(field, part, V)
-        np.testing.assert_allclose([check.min_clearance[s] for s in SURFACES], every.min(axis=(0, 1)), rtol=0,
+        np.testing.assert_allclose([check.clearance_exact[s] for s in SURFACES], every.min(axis=(0, 1)), rtol=0,
                                    atol=1e-12)
         for i, s in enumerate(SURFACES):
-            assert every[check.argmin[s] + (i,)] == pytest.approx(check.min_clearance[s], abs=1e-12)
+            assert every[check.argmin[s] + (i,)] == pytest.approx(check.clearance_exact[s], abs=1e-12)
         assert check.exact_evaluations < every.shape[0] * every.shape[1] and check.behind_pairs == 0
 
 
@@ -180,7 +180,7 @@ def test_a_path_sliding_into_a_blade_is_caught_exactly(planned, field):
     assert suction.min() < -1.0 and jumps.sum() > 10
     for few in (False, True):                    # anchors every 0.5 mm of travel / the first and last only
         check = verify_poses(poses, V, 0, g.blisk, field, anchor_travel=100.0 if few else 0.5)
-        np.testing.assert_allclose([check.min_clearance[s] for s in SURFACES], every.min(axis=(0, 1)), rtol=0,
+        np.testing.assert_allclose([check.clearance_exact[s] for s in SURFACES], every.min(axis=(0, 1)), rtol=0,
                                    atol=1e-12)
         assert not check.passed and "suction clearance" in check.message
     # the side tests found every position behind a wall, as the exact distances have them
@@ -193,12 +193,12 @@ def test_verify_poses_loads_its_field_and_refuses_bad_input(planned, field, fiel
     a = verify_poses(plan.poses[-30:], V, 0, g.blisk, field)
     b = verify_poses(plan.poses[-30:], V, 0, g.blisk, cache_dir=field_cache, cache_key=g.geometry_id, threads=1,
                      anchor_stride=1)
-    assert a.min_clearance == b.min_clearance and a.argmin == b.argmin and b.anchor_samples == 30
+    assert a.clearance_exact == b.clearance_exact and a.argmin == b.argmin and b.anchor_samples == 30
     # another channel: the same plan turned by k pitches
     k = 4
     c = verify_poses(rotation_about_x(k * g.blisk.pitch)[None] @ plan.poses[-30:], V, k, g.blisk, field)
     for s in SURFACES:
-        assert c.min_clearance[s] == pytest.approx(a.min_clearance[s], abs=1e-9)
+        assert c.clearance_exact[s] == pytest.approx(a.clearance_exact[s], abs=1e-9)
     bad = plan.poses[-3:].copy()
     bad[1, :3, :3] *= 1.001
     with pytest.raises(ValueError, match="rigid"):
@@ -225,7 +225,7 @@ def test_recheck_catches_a_path_that_cuts_a_blade(planned, field, tmp_path):
     (bad / "plan.json").write_text(json.dumps(doc))
     check = verify_exported_plan(bad, g.blisk, threshold=0.0, field=field)
     assert not check.passed
-    assert check.min_clearance["suction"] < 0 and check.argmin["suction"][0] in range(j - 2, j + 3)
+    assert check.clearance_exact["suction"] < 0 and check.argmin["suction"][0] in range(j - 2, j + 3)
     assert "suction clearance" in check.message and "disagree" in check.message and "moves" in check.message
     assert not check.start_outside and "not outside" in check.message
 
@@ -293,10 +293,10 @@ def test_failed_plan_is_written_but_refused_by_default(planned, tmp_path):
                   final_pose=plan.final_pose, options=plan.options, axis_names=AXIS_NAMES[5],
                   samples=np.zeros((0, 5)), poses=np.zeros((0, 4, 4)), nodes=np.zeros((0, 5)),
                   metrics=PlanMetrics(), furthest_node=4, furthest_reference=0.8, blocking_surface="suction",
-                  blocking_clearance=-0.01)
+                  blocking_clearance_lower_bound=-0.01)
     write_plan(failed, tmp_path / "f", g.blisk)
     doc = json.loads((tmp_path / "f" / "plan.json").read_text())      # strict JSON: NaN written as null
-    assert doc["metrics"]["min_clearance"]["hub"] is None and doc["failure"]["blocking_surface"] == "suction"
+    assert doc["metrics"]["clearance_lower_bound"]["hub"] is None and doc["failure"]["blocking_surface"] == "suction"
     with pytest.raises(EdmError) as err:
         read_plan(tmp_path / "f")
     assert err.value.code == ErrorCode.INFEASIBLE and "blocked by the suction wall" in str(err.value)

@@ -22,7 +22,7 @@ def translation(y):
 def test_straight_motion_clear_of_a_wall_is_certified():
     pose_at, lip = screw_motion(translation(0.0), translation(1.0), np.array([[0, 1.0, 0]]))
     res = certify_segment(wall_clearance(3.0), pose_at, lip, threshold=0.1)
-    assert res.certified and np.isnan(res.first_contact) and res.min_clearance >= 0.1
+    assert res.certified and np.isnan(res.first_contact) and res.clearance_lower_bound >= 0.1
 
 
 def test_collision_between_two_clear_waypoints_is_caught():

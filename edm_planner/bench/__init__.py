@@ -225,7 +225,8 @@ def bench_planning(runs=PLANNING_RUNS):
             "samples": len(plan.samples), "objfun1": round(m.objfun1, 4), "objfun2": round(m.objfun2, 3),
             "smoothness_per_axis": dict(zip(m.axis_names, (float(f"{v:.4g}") for v in m.smoothness))),
             "sharp_points_per_axis": dict(zip(m.axis_names, m.sharp_points)),
-            "min_clearance_mm": {k: round(v, 4) for k, v in m.min_clearance_by_surface.items()},
+            "clearance_lower_bound_mm": {k: round(v, 4) for k, v in m.by_surface("clearance_lower_bound").items()},
+            "clearance_exact_mm": {k: round(v, 4) for k, v in m.by_surface("clearance_exact").items()},
             "path_length_mm": round(m.path_length, 2), "evaluations": m.solver_evaluations,
             "message": plan.message[:200]}
         _log.warning("planning %s: %s", label, out[label])

@@ -38,6 +38,27 @@ class Method(IntEnum):
     MESH = 3
 
 
+class ClearanceKind(IntEnum):
+    """What a method's clearances are (CheckInterference.srv CLEARANCE_*)."""
+
+    EXACT = 0                   #: exact signed distance of the electrode's vertices
+    WITHIN_ERROR_BOUND = 1      #: a fast value; the exact one lies within +- the error bound
+    NONE = 2                    #: no clearances, feasibility flags only
+
+    @classmethod
+    def of(cls, method):
+        return {Method.EXACT: cls.EXACT, Method.FAST: cls.WITHIN_ERROR_BOUND,
+                Method.MESH: cls.WITHIN_ERROR_BOUND, Method.PAPER_CRITERIA: cls.NONE}[Method(method)]
+
+    def describe(self, error_bound):
+        """How a figure of this kind reads, e.g. 'fast, exact within +-3.5 um'."""
+        if self == ClearanceKind.EXACT:
+            return "exact"
+        if self == ClearanceKind.NONE:
+            return "no clearances, feasibility flags only"
+        return f"fast, exact within +-{error_bound * 1e3:.1f} um"
+
+
 @dataclass(frozen=True)
 class CheckerOptions:
     """Options of a ChannelChecker."""
@@ -62,6 +83,7 @@ class CheckResult:
     clearances: np.ndarray            # (P, 4) mm, order of SURFACES (NaN for paper criteria)
     colliding: np.ndarray             # (P,) bool
     error_bound: float                # mm
+    kind: ClearanceKind               # what the clearances are
     closest: np.ndarray = None        # (P, 4, 2, 3) [electrode point, surface point] in W
     segments: list = field(default_factory=list)
 
@@ -237,7 +259,7 @@ class ChannelChecker:
             colliding = clear.min(axis=1) < threshold + bound
             if closest:
                 pairs = self.closest_pairs(poses, points, arg, channel)
-        result = CheckResult(clear, colliding, float(bound), pairs)
+        result = CheckResult(clear, colliding, float(bound), ClearanceKind.of(method), pairs)
         if segments and method != Method.PAPER_CRITERIA:
             ends = clear.min(axis=1) - bound
             for i in range(len(poses) - 1):

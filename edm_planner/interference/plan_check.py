@@ -37,7 +37,7 @@ class PlanCheck:
     passed : bool
         Every sample clear by ``threshold`` on every surface, no vertex step above
         ``max_step``, axis values and poses agree.
-    min_clearance : dict
+    clearance_exact : dict
         Surface -> the smallest exact signed clearance over all samples and vertices [mm].
     argmin : dict
         Surface -> (sample, vertex) attaining it.
@@ -60,7 +60,7 @@ class PlanCheck:
     """
 
     passed: bool
-    min_clearance: dict
+    clearance_exact: dict
     argmin: dict
     max_vertex_step: float
     axes_pose_error: float
@@ -140,7 +140,7 @@ class PoseCheck:
     ----------
     passed : bool
         Every surface's minimum at least ``threshold``.
-    min_clearance : dict
+    clearance_exact : dict
         Surface -> the smallest exact signed clearance over all samples and vertices [mm].
     argmin : dict
         Surface -> (sample, vertex) attaining it.
@@ -162,7 +162,7 @@ class PoseCheck:
     """
 
     passed: bool
-    min_clearance: dict
+    clearance_exact: dict
     argmin: dict
     max_vertex_step: float
     samples: int
@@ -290,7 +290,7 @@ def verify_poses(poses, vertices, channel, blisk, field=None, *, threshold=0.0, 
     problems = [f"{s} clearance {best[s]:.4f} mm below {threshold} mm at sample {argmin[s][0]}"
                 for s in SURFACES if best[s] < threshold]
     elapsed = time.perf_counter() - t0
-    return PoseCheck(passed=not problems, min_clearance=best, argmin=argmin, max_vertex_step=max_vstep,
+    return PoseCheck(passed=not problems, clearance_exact=best, argmin=argmin, max_vertex_step=max_vstep,
                      samples=N, vertices=m, anchor_samples=len(anchors), exact_evaluations=len(evaluated),
                      exact_by_surface={s: int(r[3]) for s, r in zip(SURFACES, results)},
                      behind_pairs=len(behind_t), threshold=float(threshold), elapsed=elapsed,
@@ -376,7 +376,7 @@ def verify_exported_plan(path, blisk, threshold=0.0, max_step=MAX_VERTEX_STEP, a
     _log.info("verified %s: %d samples x %d vertices, %d exact points (%s), %.1f s (search %.1f s)",
               path, check.samples, check.vertices, check.exact_evaluations, check.exact_by_surface, elapsed,
               check.elapsed)
-    return PlanCheck(passed=not problems, min_clearance=check.min_clearance, argmin=check.argmin,
+    return PlanCheck(passed=not problems, clearance_exact=check.clearance_exact, argmin=check.argmin,
                      max_vertex_step=check.max_vertex_step, axes_pose_error=axes_error, start_outside=start_outside,
                      final_pose_error=final_error, samples=check.samples, vertices=check.vertices,
                      full_evaluations=check.anchor_samples, exact_evaluations=check.exact_evaluations,

@@ -37,15 +37,15 @@ class SegmentResult:
         (measured at a sample, or the bound of an uncertified interval); 0 if certified.
     evaluations : int
         Clearance evaluations made (subdivisions + 2).
-    min_clearance : float
-        Smallest clearance lower bound over the segment [mm].
+    clearance_lower_bound : float
+        Certified lower bound of the clearance over the segment (the smallest of its intervals') [mm].
     """
 
     certified: bool
     first_contact: float
     penetration_bound: float
     evaluations: int
-    min_clearance: float
+    clearance_lower_bound: float
 
 
 def screw_motion(pose0, pose1, points):

@@ -93,14 +93,14 @@ class Leg:
         What the leg does (for the NC program's comments and the logs).
     samples : (n, k) float
         Axis values, first and last at rest [mm, rad].
-    min_clearance : (4,) float
+    clearance_lower_bound : (4,) float
         Certified lower bound of the per-surface clearance along the leg [mm] (NaN: not certified here).
     """
 
     phase: str
     label: str
     samples: np.ndarray
-    min_clearance: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
+    clearance_lower_bound: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
 
 
 @dataclass
@@ -176,16 +176,16 @@ class MachiningCycle:
                 out.append((phase, a, b))
         return out
 
-    def min_clearance(self, phase=None):
+    def clearance_lower_bound(self, phase=None):
         """(4,) certified lower bound per surface over the legs (of one phase) [mm]."""
-        rows = [leg.min_clearance for leg in self.legs if phase is None or leg.phase == phase]
+        rows = [leg.clearance_lower_bound for leg in self.legs if phase is None or leg.phase == phase]
         return np.nanmin(np.vstack(rows), axis=0) if rows else np.full(4, np.nan)
 
     def to_dict(self):
         return {"axis_names": list(self.axis_names), "margin_mm": self.margin, "certified": self.certified,
                 "message": self.message, "reach": self.reach.to_dict(),
                 "legs": [{"phase": p, "label": lab, "first": a, "last": b,
-                          "min_clearance_lower_bound_mm": {s: _f(v) for s, v in zip(SURFACES, leg.min_clearance)}}
+                          "clearance_lower_bound_mm": {s: _f(v) for s, v in zip(SURFACES, leg.clearance_lower_bound)}}
                          for (p, lab, a, b), leg in zip(self.leg_ranges, self.legs)]}
 
 
@@ -252,8 +252,7 @@ class CycleBuilder:
         params, _ = self.certifier.sample(spline, 0.0, 1.0, self.options.sample_spacing)
         samples = spline(params)
         samples[0], samples[-1] = q0, q1
-        low = cert.clearances.min(axis=0) if len(cert.clearances) else np.full(4, np.nan)
-        return Leg(phase, label, samples, low), cert
+        return Leg(phase, label, samples, cert.lower_bound.copy()), cert
 
     # -- copy processing ---------------------------------------------------------------------
     def radial_reach(self, q_base, limit, lean=0.0):
@@ -368,7 +367,7 @@ class CycleBuilder:
             if out is not None and r > 0:
                 out.label = f"radial out {r:.3f} mm{where}"
                 back, _ = self.leg("process", f"radial back{where}", out.samples[-1], q_base)
-                back.min_clearance = out.min_clearance.copy()
+                back.clearance_lower_bound = out.clearance_lower_bound.copy()
                 legs.extend([out, back])
             return r
 
@@ -397,7 +396,7 @@ class CycleBuilder:
                 q_prev = q_step
             setattr(reach, f"rotation_{wall}", float(angle))
             back, _ = self.leg("process", f"A back from the {wall} wall", q_prev, q_final)
-            back.min_clearance = legs[-1].min_clearance.copy()
+            back.clearance_lower_bound = legs[-1].clearance_lower_bound.copy()
             legs.append(back)
         reach.radial_reach = tuple(reaches)
         reach.radial_stock = float(max(0.0, reach.radial_reduction - min(reaches, default=0.0)))
@@ -425,7 +424,7 @@ class CycleBuilder:
         process, reach, failure = self.process_legs(q_final)
         back = Leg("return", "return (the feed reversed)", feed_samples[::-1].copy(), feed_clearance.copy())
         retract, _ = self.leg("retract", "retract (the approach reversed)", q_start, q_home)
-        retract.min_clearance = approach.min_clearance.copy()
+        retract.clearance_lower_bound = approach.clearance_lower_bound.copy()
         legs = [approach, feed] + process + [back, retract]
         cycle = MachiningCycle(self.axis_names, legs, reach, self.margin)
         problems = []

@@ -36,7 +36,7 @@ from ..geometry.electrode import ElectrodeDesign, design_electrodes
 from ..geometry.frames import rotation_about_x
 from ..machine.kinematics import axis_poses
 from ..planning.plan import PlanOptions
-from ..planning.planner import plan_channel, plan_id_for
+from ..planning.planner import add_exact_clearance, plan_channel, plan_id_for
 from .cycle import CycleBuilder, CycleOptions, shift_channel
 
 _log = logging.getLogger(__name__)
@@ -308,7 +308,8 @@ class SetDesigner:
         design = replace(piece.design, circumferential_reduction=float(h), radial_reduction=float(radial))
         try:
             plan = plan_channel(self.geometry, 0, piece.electrode_id, self.plan_options, field=self.field,
-                                design=design, electrodes=self._designed(design, piece.electrode_id))
+                                design=design, electrodes=self._designed(design, piece.electrode_id),
+                                exact_clearance=False)             # the chosen plan's only, in size_piece
         except EdmError as e:                     # a reduction that leaves no electrode
             piece.tried.append((h, radial, f"{e.code.name}: {e.message[:120]}"))
             return None, design
@@ -339,11 +340,12 @@ class SetDesigner:
         # then the thickest electrode
         h_hi, best = self._bisect(0.0, h_hi, o.circumferential_resolution, lambda h: self._plan(piece, h, r_hi), best)
         piece.plan, piece.design = best
+        add_exact_clearance(piece.plan, self.blisk, self.field)
         electrode = self._electrode(piece)
         piece.volume = float(electrode.mesh.volume)
         builder = CycleBuilder(self.field, electrode, piece.design, piece.plan.axis_names, self.cycle_options)
         margin = min(self.plan_options.search.margin_blade, self.plan_options.search.margin_hub_shroud)
-        piece.cycle = builder.build(piece.plan.samples, margin, np.asarray(piece.plan.metrics.min_clearance))
+        piece.cycle = builder.build(piece.plan.samples, margin, np.asarray(piece.plan.metrics.clearance_lower_bound))
         return True
 
     def _designed(self, design, electrode_id):

@@ -315,7 +315,7 @@ def read_exported_cycle(export_dir, doc):
         if not 0 <= a < b < len(body) or (legs and a != int(section["legs"][i - 1]["last"])):
             raise EdmError(ErrorCode.FILE_ERROR, f"{path}: leg {i} ({leg.get('phase')}) samples {a}..{b} do not fit "
                                                  f"the {len(body)} rows or the leg before")
-        clear = leg.get("min_clearance_lower_bound_mm") or {}
+        clear = leg.get("clearance_lower_bound_mm") or leg.get("min_clearance_lower_bound_mm") or {}
         low = np.array([np.nan if clear.get(s) is None else float(clear[s])
                         for s in ("suction", "pressure", "hub", "shroud")])
         legs.append(Leg(leg["phase"], leg["label"], body[a:b + 1].copy(), low))

@@ -141,7 +141,7 @@ def cycle_fields(cycle, set_id=""):
                                    points=[AxisPoint(positions=row) for row in samples.tolist()]),
             "leg_phases": [leg.phase for leg in cycle.legs], "leg_labels": [leg.label for leg in cycle.legs],
             "leg_last": [int(b) for _, _, _, b in cycle.leg_ranges],
-            "leg_min_clearance": [float(v) for leg in cycle.legs for v in np.asarray(leg.min_clearance).reshape(4)],
+            "leg_clearance_lower_bound": [float(v) for leg in cycle.legs for v in np.asarray(leg.clearance_lower_bound).reshape(4)],
             "cycle_margin": float(cycle.margin), "cycle_certified": bool(cycle.certified),
             "cycle_message": cycle.message, "set_id": set_id or ""}
 
@@ -168,7 +168,7 @@ def msg_to_cycle(msg):
         raise EdmError(CoreErrorCode.INVALID_REQUEST,
                        f"plan {msg.plan_id}: cycle fields do not agree ({n} phases, {len(msg.leg_labels)} labels, "
                        f"leg_last {last[:5]}..., {len(samples)} cycle samples)")
-    clear = np.array(msg.leg_min_clearance, dtype=np.float64)
+    clear = np.array(msg.leg_clearance_lower_bound, dtype=np.float64)
     clear = clear.reshape(n, 4) if clear.size == 4 * n else np.full((n, 4), np.nan)
     legs, first = [], 0
     for i, (phase, label, b) in enumerate(zip(msg.leg_phases, msg.leg_labels, last)):

@@ -149,6 +149,7 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0):
 
     from .. import plots
     from ..geometry.frames import rotation_about_x
+    from ..interference import SURFACES as SURFACE_NAMES
     from ..planning.export import read_plan
     from .conversions import msg_to_mesh
     from .geometry_loader import LATCHED
@@ -239,6 +240,7 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0):
             margin = float(set_doc["candidates"][0]["pieces"][0]["design"]["discharge_gap"]) - 0.02
             allc = np.vstack(list(clearances.values()))
             plots.clearance_plot(np.arange(len(allc)), allc, [margin] * 4, out_dir / "clearance.png",
+                                 f"fast values of CheckInterference, exact within +-{chk.error_bound * 1e3:.1f} um",
                                  xlabel="cycle sample (" + ", then ".join(clearances) + ")")
             deadline = time.monotonic() + 30.0
             while geo.geometry_id not in geometries:          # latched: here already, or on its way
@@ -262,16 +264,17 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0):
         print(f"  set          {set_doc['delivered']}: {', '.join(res.electrode_labels)} "
               f"({'machines the channel to the tolerance' if res.success else 'NOT to the tolerance'}), "
               f"designed in {res.planning_time:.1f} s, set {res.set_id}, whole-blisk program {res.program_id}")
+        print(f"  clearance    [mm]{'':<29}" + "".join(f"{n:>10}" for n in SURFACE_NAMES))
         for label, metrics in zip(res.electrode_labels, m):
-            print(f"  {label:<12} min clearance [mm] (certified lower bound) " + ", ".join(
-                f"{n} {v:.4f}" for n, v in zip(("suction", "pressure", "hub", "shroud"),
-                                               (metrics.min_clearance_suction, metrics.min_clearance_pressure,
-                                                metrics.min_clearance_hub, metrics.min_clearance_shroud))))
+            for i, (kind, name) in enumerate((("certified lower bound, whole path", "clearance_lower_bound"),
+                                              ("exact minimum, vertices at samples", "clearance_exact"))):
+                print(f"  {label if i == 0 else '':<12} {kind:<34}"
+                      + "".join(f"{getattr(metrics, f'{name}_{n}'):>10.4f}" for n in SURFACE_NAMES))
         removal = delivered.get("removal", {})
         print(f"  stock left   exact at wall samples {removal.get('accuracy', {}).get('sample_spacing_mm')} mm "
               f"apart, tolerance {removal.get('tolerance_mm')} mm:")
         for name, f in sorted(removal.get("surfaces", {}).items(),
-                              key=lambda kv: ("suction", "pressure", "hub", "shroud").index(kv[0])):
+                              key=lambda kv: SURFACE_NAMES.index(kv[0])):
             print(f"    {name:<9} max {f['stock_max_mm']:.4f} mm, mean {f['stock_mean_mm']:.4f} mm, "
                   f"{100 * f['area_fraction_above_tolerance']:.2f} % of the area above "
                   f"({100 * (f['area_fraction_beyond_inherent'] or 0):.2f} % beyond the corner rounding), "

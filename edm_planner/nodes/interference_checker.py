@@ -148,8 +148,10 @@ class InterferenceCheckerNode(Node):
                 certified=seg.certified, first_contact=float(seg.first_contact),
                 penetration_bound=float(seg.penetration_bound), subdivisions=int(seg.evaluations)))
         response.error_bound = float(result.error_bound)
+        response.clearance_kind = int(result.kind)
         n_coll = int(result.colliding.sum())
-        response.message = f"{len(poses)} pose(s), {n_coll} colliding, method {method.name.lower()}"
+        response.message = (f"{len(poses)} pose(s), {n_coll} colliding, method {method.name.lower()}: clearances "
+                            f"{result.kind.describe(result.error_bound)}")
         response.error_code = error_code(ErrorCode.SUCCESS)
 
     def _redesigned(self, gid, checker, msg):

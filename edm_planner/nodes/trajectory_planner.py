@@ -51,6 +51,8 @@ from ..geometry.electrode import ElectrodeDesign, design_electrodes
 from ..geometry.loader import LoadedGeometry
 from ..interference.fast import FastChannelField
 from ..planning.objective import Weights
+from ..interference import SURFACES
+from ..planning.plan import PlanMetrics as CorePlanMetrics
 from ..planning.plan import PlanOptions
 from ..planning.planner import plan_channel
 from ..planning.search import SearchOptions
@@ -99,8 +101,9 @@ def metrics_to_msg(m, cycle=None, removal=None):
                       solver_evaluations=int(m.solver_evaluations), planning_time=float(m.planning_time),
                       certified=bool(m.certified), circumferential_reduction=float(m.circumferential_reduction),
                       **machining_figures(cycle, removal))
-    (msg.min_clearance_suction, msg.min_clearance_pressure, msg.min_clearance_hub,
-     msg.min_clearance_shroud) = (float(v) for v in m.min_clearance)
+    for name in m.CLEARANCES:
+        for surface, value in m.by_surface(name).items():
+            setattr(msg, f"{name}_{surface}", value)
     return msg
 
 
@@ -339,7 +342,7 @@ class TrajectoryPlannerNode(Node):
         response.furthest_node = int(plan.furthest_node)
         response.furthest_reference = float(plan.furthest_reference)
         response.blocking_surface = plan.blocking_surface
-        response.blocking_clearance = float(plan.blocking_clearance)
+        response.blocking_clearance_lower_bound = float(plan.blocking_clearance_lower_bound)
         if not plan.success:
             self.get_logger().warning(f"plan {plan.plan_id}: {plan.error_code.name}: {plan.message}")
             return
@@ -485,10 +488,9 @@ class TrajectoryPlannerNode(Node):
             note = f"; from the plan store (planned {stored.created})"
         fill_roughing_response(response, stored, self.get_parameter("frame_id").value)
         response.message += note
-        nan = float("nan")
         metrics = PlanMetrics(node_count=len(response.labels), planning_time=response.planning_time,
-                              axis_names=list(stored.axis_names), min_clearance_suction=nan,
-                              min_clearance_pressure=nan, min_clearance_hub=nan, min_clearance_shroud=nan)
+                              axis_names=list(stored.axis_names),
+                              **{f"{name}_{s}": float("nan") for name in CorePlanMetrics.CLEARANCES for s in SURFACES})
         self.plan_pub.publish(channel_plan_msg(stored, pose_array_msg(stored.poses, response.tool_poses.header.frame_id),
                                                response.axis_path, metrics))
         self.get_logger().info(f"roughing plan {plan_id}: {response.message}")

@@ -44,6 +44,10 @@ class Certificate:
     poses : (N, 4, 4) float
     clearances : (N, 4) float
         Lower bounds of the per-surface clearance at the samples [mm].
+    lower_bound : (4,) float
+        Certified lower bound of the per-surface clearance over the whole
+        continuous path (samples and every interval between them, by the
+        Lipschitz bound) [mm]; NaN when the path is not certified.
     max_step : float
         Largest bound on any vertex's move between consecutive samples [mm].
     first_failure : float
@@ -65,6 +69,7 @@ class Certificate:
     failure_surface: str = ""
     penetration_bound: float = 0.0
     exact_checks: int = 0
+    lower_bound: np.ndarray = None
 
 
 def _axis_columns(axis_names):
@@ -248,7 +253,22 @@ class PathCertifier:
         order = np.argsort(p)
         axes = spline(p[order])
         cert = Certificate(failure is None, p[order], axes, self.pose_of(axes), c[order], worst_move,
-                           exact_checks=self.exact_checks)
+                           exact_checks=self.exact_checks, lower_bound=np.full(len(SURFACES), np.nan))
         if failure is not None:
             cert.first_failure, cert.failure_surface, cert.penetration_bound = failure
+        else:
+            cert.lower_bound = self._path_lower_bound(spline, cert.params, cert.clearances)
         return cert
+
+    def _path_lower_bound(self, spline, params, clear):
+        """(4,) lower bound of each surface's clearance over the whole path [mm].
+
+        The evaluated samples of a finished certification partition the path
+        into the intervals it certified; inside each, every vertex is at least
+        ``(c_a + c_b - D) / 2`` clear (``D`` the interval's displacement bound).
+        """
+        if len(params) < 2:
+            return clear.min(axis=0)
+        move = self._bounds(spline, params[:-1], params[1:])
+        inside = 0.5 * (clear[:-1] + clear[1:] - move[:, None])
+        return np.minimum(clear.min(axis=0), inside.min(axis=0))

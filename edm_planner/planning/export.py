@@ -205,7 +205,7 @@ def write_plan(plan, out_dir, blisk, workpiece_resolution=0.5):
             "failure": {"furthest_node": int(plan.furthest_node),
                         "furthest_reference": json_safe(plan.furthest_reference),
                         "blocking_surface": plan.blocking_surface,
-                        "blocking_clearance": json_safe(plan.blocking_clearance)},
+                        "blocking_clearance_lower_bound": json_safe(plan.blocking_clearance_lower_bound)},
             "files": {
                 "electrode": {"name": FILES["electrode"], "sha256": _sha256(electrode), "encoding": "ascii",
                               "vertices": len(plan.electrode_mesh.vertices),

@@ -49,11 +49,25 @@ class PlanOptions:
 
 @dataclass
 class PlanMetrics:
-    """Figures of a plan (PlanMetrics.msg). Units: mm, rad, s."""
+    """Figures of a plan (PlanMetrics.msg). Units: mm, rad, s.
+
+    The clearances, per surface in the order of SURFACES, mean one thing each:
+
+    * ``clearance_lower_bound``: certified lower bound over the whole continuous
+      path, of the electrode as designed (its vertices' field clearance less
+      the field's error bound and the electrode's chord tolerance, carried
+      between samples by the certificate's Lipschitz bound); at least the
+      plan's margins;
+    * ``clearance_exact``: the exact minimum signed clearance of every
+      electrode vertex at every sample of the plan (``verify_poses``; the
+      vertices move at most ``sample_spacing`` between samples); NaN where
+      not computed.
+    """
 
     node_count: int = 0
     path_length: float = 0.0                     # mm, path of the electrode origin
-    min_clearance: tuple = (float("nan"),) * 4   # mm per surface (order of SURFACES) along the certified path
+    clearance_lower_bound: tuple = (float("nan"),) * 4   # mm, certified, over the continuous path
+    clearance_exact: tuple = (float("nan"),) * 4         # mm, exact, every vertex at every sample
     objfun1: float = 0.0                         # Huang eq. 4, summed over nodes
     objfun2: float = 0.0                         # Huang eq. 5, summed over nodes
     axis_names: tuple = ()
@@ -64,16 +78,40 @@ class PlanMetrics:
     certified: bool = False
     circumferential_reduction: float = 0.0       # rad
 
-    @property
-    def min_clearance_by_surface(self):
-        return dict(zip(SURFACES, self.min_clearance))
+    #: the per-surface clearance fields, stored as {surface: value} mappings
+    CLEARANCES = ("clearance_lower_bound", "clearance_exact")
+
+    def by_surface(self, name):
+        """``{surface: value}`` of one of :attr:`CLEARANCES` [mm]."""
+        return dict(zip(SURFACES, (float(v) for v in getattr(self, name))))
 
     def to_dict(self):
         d = {k: getattr(self, k) for k in self.__dataclass_fields__}
-        d["min_clearance"] = {s: float(v) for s, v in zip(SURFACES, self.min_clearance)}
+        for k in self.CLEARANCES:
+            d[k] = self.by_surface(k)
         for k in ("axis_names", "smoothness", "sharp_points"):
             d[k] = list(d[k])
         return d
+
+    @classmethod
+    def from_dict(cls, d, margins=None):
+        """The metrics of :meth:`to_dict` (a stored or exported record).
+
+        Records written before the clearances had one meaning each carry
+        ``min_clearance`` (a lower bound at the certification samples only);
+        they get ``margins`` (what their certificate proves over the whole
+        path) as the lower bound, and no exact figure.
+        """
+        d = dict(d)
+        old = d.pop("min_clearance", None)
+        if old is not None and "clearance_lower_bound" not in d:
+            d["clearance_lower_bound"] = dict(zip(SURFACES, margins if margins is not None else (float("nan"),) * 4))
+        for k in cls.CLEARANCES:
+            v = d.get(k)
+            d[k] = tuple(float(v[s]) if v and v.get(s) is not None else float("nan") for s in SURFACES)
+        for k in ("axis_names", "smoothness", "sharp_points"):
+            d[k] = tuple(d.get(k, ()))
+        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
 
 
 @dataclass
@@ -102,7 +140,7 @@ class Plan:
     nodes : (n, k) float
         Axis values of the search nodes, feed order.
     metrics : PlanMetrics
-    furthest_node, furthest_reference, blocking_surface, blocking_clearance
+    furthest_node, furthest_reference, blocking_surface, blocking_clearance_lower_bound
         On failure: how far the search got [nodes, mm] and what blocked it [mm].
     cycle : MachiningCycle or None
         The whole machining cycle around the feed (approach, feed, process,
@@ -132,7 +170,7 @@ class Plan:
     furthest_node: int = 0
     furthest_reference: float = 0.0
     blocking_surface: str = ""
-    blocking_clearance: float = float("nan")
+    blocking_clearance_lower_bound: float = float("nan")
     cycle: object = None
     removal: dict = None
     set_id: str = ""

@@ -114,7 +114,7 @@ class SearchResult:
     evaluations: int = 0
     direction: int = 1
     blocking_surface: str = ""
-    blocking_clearance: float = float("nan")
+    blocking_clearance_lower_bound: float = float("nan")
     furthest_reference: float = 0.0
     elapsed: float = 0.0
     reference: np.ndarray = None             # (n,) distance along the reference at each node [mm]
@@ -430,7 +430,8 @@ class ExitSearch:
                                 f"the electrode at its final pose is {m0[0, j]:.4f} mm from the {SURFACES[j]} "
                                 f"surface, below the margin {self.required[j]:.4f} mm (+ field bound "
                                 f"{self.bound * 1e3:.1f} um)", start[None], m0, evaluations=self.evaluations,
-                                blocking_surface=SURFACES[j], blocking_clearance=float(m0[0, j]),
+                                blocking_surface=SURFACES[j],
+                                blocking_clearance_lower_bound=float(m0[0, j] - self.bound),
                                 elapsed=time.perf_counter() - t0)
         # the default method keeps, where the channel allows, a little more slack than the electrode has at its
         # machining pose (where every method starts): smooth where there is room, never closer than it starts
@@ -469,12 +470,12 @@ class ExitSearch:
                 # record what blocks, then shorten the step (Liu 4.2)
                 d, mins, _ = self._assess(self._candidates(state, prev_incr[None], step, frame))
                 j = int(np.argmin(mins[0] - self.margins))
-                last_block = (SURFACES[j], float(mins[0, j]))
+                last_block = (SURFACES[j], float(mins[0, j] - self.bound))     # a lower bound over the search points
                 step *= 0.5
                 if step < o.min_step:
                     return self._fail(SearchStatus.INFEASIBLE,
                                       f"no feasible step after {travelled:.3f} mm along the reference: blocked by the "
-                                      f"{last_block[0]} surface (clearance {last_block[1]:.4f} mm)",
+                                      f"{last_block[0]} surface (clearance lower bound {last_block[1]:.4f} mm)",
                                       states, clears, direction, travelled, last_block)
                 continue
             new = self._candidates(state, incr[None], step, frame)
@@ -503,4 +504,5 @@ class ExitSearch:
 
     def _fail(self, status, message, states, clears, direction, travelled, block):
         return SearchResult(status, message, np.array(states), np.array(clears), direction=direction,
-                            blocking_surface=block[0], blocking_clearance=block[1], furthest_reference=travelled)
+                            blocking_surface=block[0], blocking_clearance_lower_bound=block[1],
+                            furthest_reference=travelled)

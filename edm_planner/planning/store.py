@@ -58,7 +58,6 @@ import numpy as np
 
 from .. import __version__
 from ..errors import EdmError, ErrorCode
-from ..interference import SURFACES
 
 log = logging.getLogger(__name__)
 
@@ -564,7 +563,7 @@ def cycle_to_record(cycle):
                       "margin": float(cycle.margin), "certified": bool(cycle.certified), "message": cycle.message}}
     arrays = {"cycle_leg_samples": np.vstack([np.asarray(leg.samples, dtype=np.float64) for leg in legs]),
               "cycle_leg_lengths": np.array([len(leg.samples) for leg in legs], dtype=np.int64),
-              "cycle_min_clearance": np.vstack([np.asarray(leg.min_clearance, dtype=np.float64).reshape(4)
+              "cycle_min_clearance": np.vstack([np.asarray(leg.clearance_lower_bound, dtype=np.float64).reshape(4)
                                                 for leg in legs])}
     return meta, arrays
 
@@ -595,17 +594,17 @@ def stored_to_plan(stored):
 
     if stored.kind != "channel":
         raise PlanStoreError(f"plan {stored.plan_id} is a {stored.kind} plan, not a channel plan")
-    m = dict(stored.meta["metrics"])
-    m["min_clearance"] = tuple(float(m["min_clearance"][s]) for s in SURFACES)
-    for k in ("axis_names", "smoothness", "sharp_points"):
-        m[k] = tuple(m[k])
+    options = plan_options_from_dict(stored.meta["options"])
+    so = options.search
+    metrics = PlanMetrics.from_dict(stored.meta["metrics"], margins=(so.margin_blade, so.margin_blade,
+                                                                     so.margin_hub_shroud, so.margin_hub_shroud))
     mesh = trimesh.Trimesh(stored.arrays["electrode_vertices"], stored.arrays["electrode_faces"], process=False)
     return Plan(plan_id=stored.plan_id, error_code=ErrorCode(stored.meta["error_code"]),
                 message=stored.meta["message"], geometry_id=stored.geometry_id, channel=stored.channel,
                 electrode_id=stored.electrode_id, electrode_mesh=mesh, final_pose=stored.final_pose,
-                options=plan_options_from_dict(stored.meta["options"]), axis_names=stored.axis_names,
+                options=options, axis_names=stored.axis_names,
                 samples=stored.samples, poses=stored.poses, nodes=stored.arrays["nodes"],
-                metrics=PlanMetrics(**m), cycle=cycle_from_record(stored.meta, stored.arrays),
+                metrics=metrics, cycle=cycle_from_record(stored.meta, stored.arrays),
                 removal=stored.meta.get("removal"), set_id=stored.meta.get("set_id", ""))
 
 
