@@ -7,7 +7,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export AMENT_PREFIX_PATH := $(CURDIR)/$(VENV)
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: setup demo test test-fast bench clean
+.PHONY: setup demo test test-fast bench soak clean
 
 setup:
 	@bash tools/setup.sh
@@ -30,6 +30,11 @@ test-fast: setup
 
 bench: setup
 	$(PY) -m edm_planner.bench --out out/bench.json
+
+# 1000 CheckInterference and 100 PlanChannel calls from two clients against one set of node processes:
+# memory every 100 calls and the latency percentiles (README, Reliability).
+soak: setup
+	$(PY) -m edm_planner.bench.soak --out out/soak.json
 
 clean:
 	rm -rf build out .pytest_cache

@@ -8,7 +8,7 @@ and an equal request is answered from there. ``edm-plan export`` times a plan
 program and the timed CSV; ``edm-plan store list`` shows the stored plans.
 Progress goes to stderr (a bar on a terminal, lines otherwise), a short summary
 to stdout. Exit status: 0 on success, otherwise the
-:class:`~edm_planner.errors.ErrorCode` value (1 .. 8; argparse's own usage
+:class:`~edm_planner.errors.ErrorCode` value (1 .. 9; argparse's own usage
 errors exit with 2), with ``error: NAME: message`` on stderr. A failed plan is
 still written (error code, message, where the search stopped) for diagnosis;
 ``read_plan`` refuses it.
@@ -605,11 +605,21 @@ def main(argv=None, out=None, err=None):
             return _rough(args, out, err)
         return _plan(args, out, err)
     except EdmError as exc:
-        print(f"error: {exc.code.name}: {exc.message}", file=err)
+        print(f"error: {exc.code.name}: {_one_line(exc.message)}", file=err)
         return int(exc.code)
     except KeyboardInterrupt:
         print("error: interrupted", file=err)
         return 130
+    except Exception as exc:     # a bug: one line for the user, the traceback with -v
+        logging.getLogger(__name__).info("internal error", exc_info=True)      # shown with -v
+        print(f"error: {ErrorCode.INTERNAL.name}: {_one_line(repr(exc))} (a bug: please report it; -v shows "
+              f"the traceback)", file=err)
+        return int(ErrorCode.INTERNAL)
+
+
+def _one_line(message):
+    """The message on one line (YAML errors and file names may hold line breaks)."""
+    return " ".join(part.strip() for part in str(message).splitlines() if part.strip())
 
 
 if __name__ == "__main__":

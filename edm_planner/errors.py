@@ -19,6 +19,7 @@ class ErrorCode(IntEnum):
     INFEASIBLE = 6
     TIMEOUT = 7
     INTERNAL = 8
+    NOT_CERTIFIED = 9
 
 
 class EdmError(Exception):

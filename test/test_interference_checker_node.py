@@ -193,3 +193,37 @@ def test_a_re_designed_electrode_is_checked_as_requested(system, default_geometr
     msg.split = "diagonal"
     bad = call(system, [rear.final_pose], electrode_id="rear", electrode=msg)
     assert bad.error_code.val in (ErrorCode.INVALID_REQUEST, ErrorCode.INVALID_GEOMETRY) and "split" in bad.message
+
+
+def test_a_geometry_loaded_again_after_another_is_the_latest_again(system):
+    """Load A (the default), then B (the same blisk, a 0.2 mm gap), then A again: a request naming no
+    geometry is answered for A, whose electrode sits 0.1 mm from the walls at its final pose."""
+    from edm_planner_msgs.srv import LoadGeometry
+
+    from conftest import CONFIG
+
+    ros, client, gid_a, final = system
+    text = (CONFIG / "default_blisk.yaml").read_text() + "\nelectrode: {discharge_gap: 0.2}\n"
+
+    def load(**fields):
+        res = ros.call(client, LoadGeometry, "load_geometry", LoadGeometry.Request(**fields), timeout=300)
+        assert res.success, res.message
+        return res.geometry_id
+
+    def latest():
+        return clearances(call(system, [final], geometry_id=""))[0]
+
+    gid_b = load(yaml_text=text)
+    assert gid_b != gid_a
+    assert call(system, [final], geometry_id=gid_b).error_code.val == ErrorCode.SUCCESS   # the checker has B
+    deadline = time.monotonic() + 120
+    while np.allclose(latest(), GAP, atol=3e-6):        # B's thinner electrode: more room than A's 0.1 mm
+        assert time.monotonic() < deadline, "a request naming no geometry is not answered for B"
+        time.sleep(0.2)
+    assert latest().min() > 0.15
+    from edm_planner.nodes.geometry_loader import config_directory
+    assert load(path=str(config_directory() / "default_blisk.yaml")) == gid_a
+    deadline = time.monotonic() + 120
+    while not np.allclose(latest(), GAP, atol=3e-6):
+        assert time.monotonic() < deadline, "a request naming no geometry is still answered for B"
+        time.sleep(0.2)

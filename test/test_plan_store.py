@@ -56,21 +56,6 @@ def test_round_trip_is_bit_for_bit(plan, tmp_path):
     assert [r["plan_id"] for r in rows] == [plan.plan_id] and rows[0]["kind"] == "channel"
 
 
-def test_a_record_of_an_earlier_version_reads_with_its_certified_margins_as_the_bound(plan, tmp_path):
-    old = plan_to_stored(plan)
-    metrics = dict(old.meta["metrics"])
-    del metrics["clearance_lower_bound"], metrics["clearance_exact"]
-    metrics["min_clearance"] = {"suction": 0.05, "pressure": 0.06, "hub": 0.0915, "shroud": 0.2}   # sample minima
-    old.meta = {**old.meta, "metrics": metrics}
-    PlanStore(tmp_path).put(old, "old")
-    again = stored_to_plan(PlanStore(tmp_path).find("old"))
-    so = plan.options.search
-    assert again.metrics.clearance_lower_bound == (so.margin_blade, so.margin_blade, so.margin_hub_shroud,
-                                                   so.margin_hub_shroud)
-    assert np.isnan(again.metrics.clearance_exact).all()
-    np.testing.assert_array_equal(again.samples, plan.samples)
-
-
 def test_request_keys_tell_settings_and_geometry_apart(plan):
     base = request_key("g" * 64, 1, "rear", plan.options)
     assert base == request_key("g" * 64, 1, "rear", replace(plan.options))

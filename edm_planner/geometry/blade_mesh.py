@@ -260,26 +260,47 @@ def _count_open_edges(mesh):
     return len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1))
 
 
-def _looks_like_stl(path):
-    """True if the file is an ASCII STL or a binary STL of consistent size."""
+def _stl_problem(path):
+    """Why the file cannot be an STL ('' when it may be one): checked on its bytes, before a parser sees it.
+
+    A binary STL is 84 bytes (80 of header, the triangle count) and 50 per triangle; anything else must be
+    ASCII STL: text (UTF-8, of which ASCII is part) starting with ``solid``.
+    """
     size = os.path.getsize(path)
     with open(path, "rb") as fh:
         head = fh.read(84)
-    if head[:5].lower() == b"solid":
-        return True
-    if len(head) < 84:
-        return False
-    count = int(np.frombuffer(head[80:84], dtype="<u4")[0])
-    return size == 84 + 50 * count
+        count = int(np.frombuffer(head[80:84], dtype="<u4")[0]) if len(head) == 84 else None
+        if count is not None and size == 84 + 50 * count:
+            return ""                                  # binary (its header may start with "solid", too)
+        if head[:5].lower() == b"solid":
+            fh.seek(0)
+            try:
+                fh.read().decode("utf-8")
+            except UnicodeDecodeError as exc:
+                return (f"not an STL: it starts like ASCII STL ('solid') but is not text (byte {exc.start} is "
+                        f"not UTF-8), nor a binary STL of consistent size")
+            return ""
+    binary = (f"a binary STL of consistent size (84 bytes + 50 per triangle: the {count} triangles its header "
+              f"announces would make {84 + 50 * count} bytes, the file has {size})" if count is not None else
+              f"a binary STL (at least 84 bytes, the file has {size})")
+    return f"not an STL: neither {binary} nor ASCII STL text starting with 'solid'"
 
 
-def load_blade_mesh(path):
+def _looks_like_stl(path):
+    """True if the file is an ASCII STL or a binary STL of consistent size."""
+    return not _stl_problem(path)
+
+
+def load_blade_mesh(path, max_bytes=None):
     """Read and validate a closed blade mesh in millimetres.
 
     Parameters
     ----------
     path : str or os.PathLike
         STL, OBJ or PLY file of one blade.
+    max_bytes : int, optional
+        Size limit of the file, checked before anything reads it (None: none; the geometry loader passes
+        its ``max_mesh_bytes``).
 
     Returns
     -------
@@ -291,7 +312,8 @@ def load_blade_mesh(path):
     Raises
     ------
     GeometryFileError
-        Missing file, unsupported format, unreadable file or not a mesh.
+        Missing file, larger than ``max_bytes``, unsupported format, unreadable file (an STL that is
+        neither binary of consistent size nor ASCII text: said so) or not a mesh.
     GeometryError
         Empty mesh, NaN/infinite vertices, implausible size (not
         millimetres), open (not watertight), inconsistent winding,
@@ -304,6 +326,17 @@ def load_blade_mesh(path):
     if suffix not in MESH_SUFFIXES:
         raise GeometryFileError(
             f"blade mesh '{name}': unsupported format '{suffix}' (expected one of {', '.join(MESH_SUFFIXES)})")
+    if max_bytes is not None:
+        from .loader import check_file_size
+
+        check_file_size(name, max_bytes, f"blade mesh '{name}'", "mesh")
+    if suffix == ".stl":
+        try:
+            problem = _stl_problem(name)
+        except OSError as exc:
+            raise GeometryFileError(f"blade mesh '{name}': cannot be read ({exc.strerror or exc})") from None
+        if problem:
+            raise GeometryFileError(f"blade mesh '{name}': {problem}")
     try:
         mesh = trimesh.load(name, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many kinds for bad files

@@ -47,6 +47,47 @@ TOP_KEYS = {"name", "blade_count", "hub_profile", "shroud_profile", "blade", "el
 BLADE_SOURCES = ("parametric", "sections", "mesh")
 #: largest YAML document accepted (inline or file) [bytes]
 MAX_YAML_BYTES = 4 * 1024 * 1024
+#: largest blade mesh file accepted [bytes] (a fine CAD export of one blade is tens of MB)
+MAX_MESH_BYTES = 200 * 1024 * 1024
+#: largest table file (blade sections, meridional lines) accepted [bytes]
+MAX_TABLE_BYTES = 16 * 1024 * 1024
+#: deepest nesting of a YAML document (a geometry needs 6 levels, scalars counted)
+MAX_YAML_DEPTH = 32
+#: most aliases (``*name``) in a YAML document
+MAX_YAML_ALIASES = 100
+#: most nodes of a YAML document with every alias expanded (what a traversal of it visits)
+MAX_YAML_NODES = 2_000_000
+
+
+@dataclass(frozen=True)
+class FileLimits:
+    """Size limits of the files a geometry is read from, checked before a byte is parsed [bytes].
+
+    Attributes
+    ----------
+    yaml_bytes : int
+        The geometry YAML (a file or inline text).
+    mesh_bytes : int
+        A blade mesh (STL, OBJ, PLY).
+    table_bytes : int
+        A blade section table or a meridional (hub, shroud) table.
+    """
+
+    yaml_bytes: int = MAX_YAML_BYTES
+    mesh_bytes: int = MAX_MESH_BYTES
+    table_bytes: int = MAX_TABLE_BYTES
+
+    def __post_init__(self):
+        for name in ("yaml_bytes", "mesh_bytes", "table_bytes"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer number of bytes, got {value!r}")
+
+    def of(self, kind):
+        """The limit of a kind of file: 'yaml', 'mesh', 'table' or 'any' (the largest)."""
+        if kind == "any":
+            return max(self.yaml_bytes, self.mesh_bytes, self.table_bytes)
+        return getattr(self, f"{kind}_bytes")
 
 
 class FileAccess:
@@ -58,14 +99,23 @@ class FileAccess:
         Where relative names resolve (the YAML's directory).
     allowed_dirs : list of path or None
         Files must resolve (symlinks followed) inside one of these; None allows any.
+    limits : FileLimits, optional
+        Size limits by kind of file (default :class:`FileLimits`).
     """
 
-    def __init__(self, base_dir, allowed_dirs=None):
+    def __init__(self, base_dir, allowed_dirs=None, limits=None):
         self.base_dir = pathlib.Path(base_dir)
         self.allowed = None if allowed_dirs is None else [os.path.realpath(d) for d in allowed_dirs]
+        self.limits = limits or FileLimits()
         self.hashes = []        # (name, sha256) of every file read, for the geometry id
+        self.kinds = {}         # name -> kind of file ('yaml', 'mesh', 'table'), for re-reading it
 
-    def resolve(self, name, where):
+    def resolve(self, name, where, kind="any"):
+        """The real path of ``name``, inside the allowed directories and within the size limit of ``kind``.
+
+        The file is read (at most the limit and one byte) for the geometry id; one larger than the limit is
+        refused before anything parses it.
+        """
         if not isinstance(name, str) or not name:
             raise GeometryError(f"{where}: expected a file name, got {name!r}")
         path = pathlib.Path(name)
@@ -78,9 +128,33 @@ class FileAccess:
                 f"{where}: {name} resolves to {real}, outside the allowed directories {self.allowed}")
         if not os.path.isfile(real):
             raise GeometryFileError(f"{where}: file not found: {path}")
-        with open(real, "rb") as f:
-            self.hashes.append((str(name), hashlib.sha256(f.read()).hexdigest()))
+        limit = self.limits.of(kind)
+        check_file_size(real, limit, where, kind)
+        try:
+            with open(real, "rb") as f:
+                data = f.read(limit + 1)      # a file growing after the check is cut off here, and refused
+        except OSError as exc:
+            raise GeometryFileError(f"{where}: cannot read {path} ({exc.strerror or exc})") from None
+        if len(data) > limit:
+            raise GeometryFileError(_too_large(where, real, f"more than {limit}", limit, kind))
+        self.hashes.append((str(name), hashlib.sha256(data).hexdigest()))
+        self.kinds[str(name)] = kind
         return pathlib.Path(real)
+
+
+def _too_large(where, path, size, limit, kind):
+    return (f"{where}: {path} is {size} bytes, larger than the limit for {kind} files of {limit} bytes "
+            f"({limit / 2 ** 20:.4g} MiB; geometry_loader parameter max_{kind}_bytes): not read")
+
+
+def check_file_size(path, limit, where, kind):
+    """GeometryFileError when the file at ``path`` is larger than ``limit`` bytes (checked without reading it)."""
+    try:
+        size = os.stat(path).st_size
+    except OSError as exc:
+        raise GeometryFileError(f"{where}: cannot read {path} ({exc.strerror or exc})") from None
+    if size > limit:
+        raise GeometryFileError(_too_large(where, path, size, limit, kind))
 
 
 @dataclass(eq=False)
@@ -159,8 +233,9 @@ def _profile(spec, name, files):
         fmt = spec.get("format", "nasa_meridional")
         if fmt != "nasa_meridional":
             raise GeometryError(f"{name}.format: only 'nasa_meridional' files are read, got {fmt!r}")
-        path = files.resolve(spec.get("file"), f"{name}.file")
-        pts = read_nasa_meridional(path, name.split("_")[0], spec.get("length_unit", "cm"))
+        path = files.resolve(spec.get("file"), f"{name}.file", "table")
+        pts = read_nasa_meridional(path, name.split("_")[0], spec.get("length_unit", "cm"),
+                                   max_bytes=files.limits.table_bytes)
         return RevolutionProfile(pts, name)
     if not isinstance(spec, list):
         raise GeometryError(f"{name}: expected a list of [x, r] pairs in mm or a {{file: ...}} mapping")
@@ -195,16 +270,17 @@ def _blade(spec, hub, shroud, files):
         raise GeometryError(f"blade.{source}: expected {form}a mapping with a 'file' key")
     if source == "sections":
         _known(sub, {"file", "format", "length_unit"}, "blade.sections")
-        path = files.resolve(sub.get("file"), "blade.sections.file")
+        path = files.resolve(sub.get("file"), "blade.sections.file", "table")
         fmt = sub.get("format", "csv")
+        limit = files.limits.table_bytes
         if fmt == "nasa_table":
-            return read_nasa_table(path, sub.get("length_unit", "cm")), source, None
+            return read_nasa_table(path, sub.get("length_unit", "cm"), max_bytes=limit), source, None
         if fmt == "csv":
-            return read_sections_csv(path, sub.get("length_unit", "mm")), source, None
+            return read_sections_csv(path, sub.get("length_unit", "mm"), max_bytes=limit), source, None
         raise GeometryError(f"blade.sections.format: must be 'nasa_table' or 'csv', got {fmt!r}")
     _known(sub, {"file", "length_unit", "section_count", "station_count"}, "blade.mesh")
-    path = files.resolve(sub.get("file"), "blade.mesh.file")
-    mesh = load_blade_mesh(path)
+    path = files.resolve(sub.get("file"), "blade.mesh.file", "mesh")
+    mesh = load_blade_mesh(path, max_bytes=files.limits.mesh_bytes)
     scale = unit_scale(sub.get("length_unit", "mm"), "blade.mesh")
     if scale != 1.0:
         mesh.apply_scale(scale)
@@ -220,12 +296,100 @@ def _blade(spec, hub, shroud, files):
     return sections, source, report
 
 
-def parse_document(text, where="geometry"):
-    """YAML text -> mapping, with errors that name the line."""
-    if len(text.encode("utf-8", "replace")) > MAX_YAML_BYTES:
-        raise GeometryFileError(f"{where}: YAML larger than {MAX_YAML_BYTES} bytes")
+class YamlLimitError(yaml.YAMLError):
+    """A YAML document beyond a limit of :class:`LimitedSafeLoader` (depth, aliases, expanded nodes)."""
+
+
+class LimitedSafeLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` (plain data only) that refuses documents too deep or too large once aliases expand.
+
+    Checked while composing, before anything is constructed: nesting deeper than :data:`MAX_YAML_DEPTH`,
+    more than :data:`MAX_YAML_ALIASES` aliases, an alias inside the node it names (a recursive document), and
+    more than :data:`MAX_YAML_NODES` nodes with every alias expanded (the "billion laughs": a few aliases of
+    aliases stand for billions of nodes, which the geometry id's hash of the document would visit).
+    """
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._depth = 0
+        self._aliases = 0
+
+    def _limit(self, what):
+        mark = self.peek_event().start_mark
+        raise YamlLimitError(f"{what} (line {mark.line + 1}, column {mark.column + 1})")
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            self._aliases += 1
+            if self._aliases > MAX_YAML_ALIASES:
+                self._limit(f"more than {MAX_YAML_ALIASES} aliases (limit MAX_YAML_ALIASES)")
+            return super().compose_node(parent, index)
+        self._depth += 1
+        if self._depth > MAX_YAML_DEPTH:
+            self._limit(f"nested deeper than {MAX_YAML_DEPTH} levels (limit MAX_YAML_DEPTH)")
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def compose_document(self):
+        node = super().compose_document()
+        count = expanded_node_count(node)
+        if count > MAX_YAML_NODES:
+            raise YamlLimitError(f"{count} nodes with its aliases expanded, more than {MAX_YAML_NODES} (limit "
+                                 f"MAX_YAML_NODES; a YAML bomb?)")
+        return node
+
+
+def expanded_node_count(root):
+    """Nodes of a composed YAML document with every alias expanded (shared nodes counted at every use).
+
+    Linear in the distinct nodes (memoised); YamlLimitError for a node that contains itself.
+    """
+    sizes, active, stack = {}, set(), [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        children = []
+        if isinstance(node, yaml.SequenceNode):
+            children = node.value
+        elif isinstance(node, yaml.MappingNode):
+            children = [x for pair in node.value for x in pair]
+        if done:
+            active.discard(key)
+            sizes[key] = 1 + sum(sizes[id(c)] for c in children)
+            continue
+        if key in sizes:
+            continue
+        if key in active:
+            raise YamlLimitError("an alias refers to a node that contains it (a recursive document)")
+        active.add(key)
+        stack.append((node, True))
+        for child in children:
+            if id(child) in active:
+                raise YamlLimitError("an alias refers to a node that contains it (a recursive document)")
+            if id(child) not in sizes:
+                stack.append((child, False))
+    return sizes[id(root)]
+
+
+def parse_document(text, where="geometry", max_bytes=MAX_YAML_BYTES):
+    """YAML text -> mapping, with errors that name the line or the limit.
+
+    Read by :class:`LimitedSafeLoader`: plain data only (no Python objects), at most ``max_bytes`` bytes,
+    :data:`MAX_YAML_DEPTH` levels, :data:`MAX_YAML_ALIASES` aliases and :data:`MAX_YAML_NODES` nodes with
+    the aliases expanded.
+    """
+    size = len(text.encode("utf-8", "replace"))
+    if size > max_bytes:
+        raise GeometryFileError(f"{where}: YAML of {size} bytes, larger than the limit of {max_bytes} bytes "
+                                f"(geometry_loader parameter max_yaml_bytes): not parsed")
     try:
-        doc = yaml.safe_load(text)
+        doc = yaml.load(text, Loader=LimitedSafeLoader)
+    except YamlLimitError as exc:
+        raise GeometryFileError(f"{where}: YAML refused: {exc}") from None
+    except RecursionError:
+        raise GeometryFileError(f"{where}: YAML refused: nested too deeply to read") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
@@ -273,7 +437,7 @@ class GeometryMemo:
 
     def __init__(self, size=8):
         self.size = int(size)
-        self._entries = collections.OrderedDict()     # key -> (geometry, [(name, sha256)])
+        self._entries = collections.OrderedDict()     # key -> (geometry, [(name, sha256)], {name: kind})
 
     @staticmethod
     def _key(doc, files):
@@ -285,22 +449,22 @@ class GeometryMemo:
         entry = self._entries.get(key)
         if entry is None:
             return None
-        geometry, hashes = entry
+        geometry, hashes, kinds = entry
         files.hashes.clear()
         for name, _ in hashes:
-            files.resolve(name, "geometry file")          # the sandbox applies as on a first load
+            files.resolve(name, "geometry file", kinds.get(name, "any"))    # sandbox and limits as on a first load
         if files.hashes != hashes:
             return None
         self._entries.move_to_end(key)
         return geometry if geometry.source == where else replace(geometry, source=where)
 
     def remember(self, doc, files, geometry):
-        self._entries[self._key(doc, files)] = (geometry, list(files.hashes))
+        self._entries[self._key(doc, files)] = (geometry, list(files.hashes), dict(files.kinds))
         while len(self._entries) > self.size:
             self._entries.popitem(last=False)
 
 
-def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None, memo=None):
+def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None, memo=None, limits=None):
     """Load a blisk geometry from a YAML file or inline YAML text.
 
     Parameters
@@ -318,6 +482,9 @@ def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None, memo=N
     memo : GeometryMemo, optional
         Answers a document whose content (and every file's) is unchanged
         without building it again.
+    limits : FileLimits, optional
+        Size limits of the YAML, mesh and table files (default :class:`FileLimits`); a
+        larger file is refused before it is parsed.
 
     Returns
     -------
@@ -330,8 +497,8 @@ def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None, memo=N
     if (path is None) == (text is None):
         raise GeometryError("load_geometry: give exactly one of a path and inline YAML text")
     if path is not None:
-        files = FileAccess(pathlib.Path.cwd(), allowed_dirs)
-        real = files.resolve(str(path), "geometry file")
+        files = FileAccess(pathlib.Path.cwd(), allowed_dirs, limits)
+        real = files.resolve(str(path), "geometry file", "yaml")
         files.hashes.clear()      # the YAML's own bytes enter the id through the parsed document
         try:
             text = real.read_text(encoding="utf-8")
@@ -341,9 +508,9 @@ def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None, memo=N
         where = str(path)
     else:
         base = base_dir or (allowed_dirs[0] if allowed_dirs else pathlib.Path.cwd())
-        files = FileAccess(base, allowed_dirs)
+        files = FileAccess(base, allowed_dirs, limits)
         where = "inline YAML"
-    doc = parse_document(text, where)
+    doc = parse_document(text, where, files.limits.yaml_bytes)
     if memo is not None:
         geometry = memo.lookup(doc, files, where)
         if geometry is not None:

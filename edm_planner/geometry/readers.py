@@ -31,7 +31,12 @@ def unit_scale(unit, where):
     return LENGTH_UNITS[unit]
 
 
-def _read_text(path):
+def _read_text(path, max_bytes=None):
+    """The file's text; GeometryFileError when it is larger than ``max_bytes`` (checked before reading)."""
+    if max_bytes is not None:
+        from .loader import check_file_size
+
+        check_file_size(path, max_bytes, str(path), "table")
     try:
         return path.read_text(encoding="utf-8", errors="strict")
     except FileNotFoundError:
@@ -56,15 +61,15 @@ def _sections_from_rows(rows, path):
     return BladeSections(a[..., 0], a[..., 1], th_minus, th_plus)
 
 
-def read_nasa_table(path, length_unit="cm"):
-    """Blade sections from a NASA 'Table IV' file (e.g. Rotor 37).
+def read_nasa_table(path, length_unit="cm", max_bytes=None):
+    """Blade sections from a NASA 'Table IV' file (e.g. Rotor 37); ``max_bytes``: size limit (None: none).
 
     Returns
     -------
     BladeSections
     """
     scale = unit_scale(length_unit, "blade.sections")
-    text = _read_text(path)
+    text = _read_text(path, max_bytes)
     blocks = re.split(r"SURFACE NUMBER\s+\d+", text)[1:]
     if not blocks:
         raise GeometryError(f"{path}: no 'SURFACE NUMBER' blocks found; not a NASA blade table")
@@ -85,10 +90,10 @@ def read_nasa_table(path, length_unit="cm"):
     return _sections_from_rows(rows, path)
 
 
-def read_sections_csv(path, length_unit="mm"):
-    """Blade sections from a CSV ``section, x, r, theta_1, theta_2``."""
+def read_sections_csv(path, length_unit="mm", max_bytes=None):
+    """Blade sections from a CSV ``section, x, r, theta_1, theta_2``; ``max_bytes``: size limit (None: none)."""
     scale = unit_scale(length_unit, "blade.sections")
-    text = _read_text(path)
+    text = _read_text(path, max_bytes)
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if len(lines) < 2:
         raise GeometryError(f"{path}: empty section table")
@@ -107,12 +112,14 @@ def read_sections_csv(path, length_unit="mm"):
     return _sections_from_rows(rows, path)
 
 
-def read_nasa_meridional(path, curve, length_unit="cm"):
+def read_nasa_meridional(path, curve, length_unit="cm", max_bytes=None):
     """A hub or shroud line from a NASA 'Table V' file.
 
     Parameters
     ----------
     curve : {'hub', 'shroud'}
+    max_bytes : int, optional
+        Size limit of the file, checked before it is read (None: none).
 
     Returns
     -------
@@ -122,7 +129,7 @@ def read_nasa_meridional(path, curve, length_unit="cm"):
     if curve not in ("hub", "shroud"):
         raise GeometryError(f"meridional file {path}: curve must be 'hub' or 'shroud', got {curve!r}")
     scale = unit_scale(length_unit, f"{curve}_profile")
-    text = _read_text(path)
+    text = _read_text(path, max_bytes)
     values = {}
     for name in (f"Z{curve}", f"R{curve}"):
         m = re.search(rf"^\s*{name}\s*\n\s*(\d+)\s+points\s*\n(.*?)(?:\n\s*\n|\Z)", text, re.S | re.M)

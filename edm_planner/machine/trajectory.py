@@ -99,6 +99,48 @@ def machine_axis_values(samples, axis_names, final_pose, machine):
     return q, residual
 
 
+def check_samples_travel(samples, axis_names, machine, final_pose=None, what="plan"):
+    """INFEASIBLE unless every sample lies inside the machine's travel: the bridge's check before any timing.
+
+    The samples are converted to the machine's axis values (its A0 and C pivot, :func:`machine_axis_values`)
+    and then to joint values (``direction * axis + offset``), and every one of them is compared with the
+    travel; a value that is not finite counts as outside.
+
+    Parameters
+    ----------
+    samples : (N, k) float
+        Planner axis values [mm, rad].
+    axis_names : sequence of str
+        Must be the machine's axes (INVALID_REQUEST otherwise).
+    machine : MachineConfig
+    final_pose : (4, 4) float, optional
+        As for :func:`machine_axis_values`.
+    what : str
+        What the samples are, for the message (e.g. "plan 0123... leg 3 (process: ...)").
+
+    Raises
+    ------
+    EdmError
+        INFEASIBLE naming what, the sample, the axis, its joint, the value and the travel.
+    """
+    limits = machine.limits_for(axis_names)
+    samples = np.asarray(samples, dtype=np.float64).reshape(-1, len(limits))
+    finite = np.isfinite(samples).all(axis=1)
+    q = np.full_like(samples, np.nan)
+    if finite.any():
+        q[finite] = machine_axis_values(samples[finite], axis_names, final_pose, machine)[0]
+    for j, lim in enumerate(limits):
+        joint = lim.to_joint(q[:, j])
+        bad = np.flatnonzero(~((joint >= lim.position_min) & (joint <= lim.position_max)))
+        if len(bad):
+            i = int(bad[0])
+            raise EdmError(ErrorCode.INFEASIBLE,
+                           f"{what}: sample {i} of {len(samples)}: axis {lim.name} (joint {lim.joint}) at "
+                           f"{joint[i]:.6g} {lim.unit} is outside its travel [{lim.position_min:g}, "
+                           f"{lim.position_max:g}] {lim.unit} on machine {machine.name!r} ({len(bad)} sample(s) "
+                           f"outside); checked before timing, nothing sent")
+
+
 @dataclass
 class JointTrajectoryArrays:
     """What a ``trajectory_msgs/JointTrajectory`` holds, as arrays.

@@ -130,10 +130,16 @@ class PlanCycle:
                    getattr(plan, "cycle", None))
 
     @classmethod
-    def of_stored(cls, stored):
-        """From a plan-store record (any kind; only channel plans carry a cycle)."""
+    def of_stored(cls, stored, where="the plan store"):
+        """From a plan-store record (any kind; only channel plans carry a cycle), its certificate digest verified.
+
+        NOT_CERTIFIED (:class:`~edm_planner.planning.certificate.NotCertifiedError`) for a record without a
+        digest or not matching it: nothing is run that was not certified.
+        """
+        from ..planning.certificate import verify_record
         from ..planning.store import cycle_from_record
 
+        verify_record(stored, where)
         cycle = cycle_from_record(stored.meta, stored.arrays) if stored.kind == "channel" else None
         return cls(stored.plan_id, stored.geometry_id, stored.electrode_id, int(stored.channel),
                    tuple(stored.axis_names), np.asarray(stored.final_pose, dtype=np.float64),

@@ -27,13 +27,24 @@ at the home point before the next tool change, which the response names
 (``next_electrode``, phase ``tool_change`` at the end). Change the electrode,
 then ask for electrode k + 1.
 
-Error codes: UNKNOWN_ID (plan or sequence never seen), INVALID_REQUEST (channel
-does not match the plan or the electrode's first step, plan axes not the
+Refusals before anything is timed: NOT_CERTIFIED (the plan's certificate
+digest, ChannelPlan ``certificate_sha256`` or the store record's, is missing
+or does not match what the bridge holds: altered after certification, in the
+store or in transit; ``edm_planner.planning.certificate``), INVALID_REQUEST
+(the request's channel, ``expected_geometry_id`` or ``expected_reference_pose``
+disagrees with the plan), INFEASIBLE (a sample of a leg outside the travel,
+named with leg, sample, axis, value and travel).
+
+Error codes: UNKNOWN_ID (plan or sequence never seen), NOT_CERTIFIED (above),
+INVALID_REQUEST (channel does not match the plan or the electrode's first
+step, geometry or reference pose not the expected one, plan axes not the
 machine's, electrode index out of range, a sequence's plan without a cycle, a
-four-axis plan in another channel), INFEASIBLE (travel or
-velocity/acceleration limit violated, named with axis and time; or the machine's
-``/joint_states`` is further from the plan's start than the tolerance).
-Nothing that violates a limit is ever published.
+four-axis plan in another channel; a plan or sequence id that cannot name an
+export file), INFEASIBLE (travel or velocity/acceleration limit violated,
+named with axis and time; or the machine's ``/joint_states`` is further from
+the plan's start than the tolerance), FILE_ERROR (an export path that is a
+symbolic link or cannot be written). Nothing that violates a limit is ever
+published.
 
 Units: the trajectory is in the machine config's units, millimetres and
 radians (mm/s, mm/s^2 ...), like every message of this project; joint values
@@ -63,7 +74,11 @@ export_dir : str
     the machine) is also written there as ``<plan_id>.nc`` (ISO, G93 inverse time; a cycle's
     phases marked) and ``<plan_id>.csv`` (timed axis samples; a cycle's with phase columns),
     a sequence's electrode k as ``<sequence_id>.e<k>.nc`` / ``.csv``; the response message names
-    the files.
+    the files. Plain names only, never written through a symbolic link (``edm_planner.paths``).
+reference_tolerance_linear : float
+    How far the plan's reference pose may be from a request's ``expected_reference_pose`` [mm].
+reference_tolerance_rotary : float
+    The largest rotation angle between the two [rad].
 plan_store : str
     Directory of the persistent plan store the planner writes ('' : ~/.local/share/edm_planner/plan_store,
     'none' : off). A plan id not seen on ``plan`` is looked up there first, so plans can be executed by id
@@ -89,8 +104,10 @@ from ..errors import EdmError, ErrorCode
 from ..geometry.frames import rotation_about_x
 from ..machine.config import LINEAR, default_machine_path, load_machine
 from ..machine.nc import nc_program, trajectory_csv
-from ..machine.trajectory import plan_trajectory, time_run
+from ..machine.trajectory import check_samples_travel, plan_trajectory, time_run
 from ..machining.program import PlanCycle, program_runs
+from ..paths import export_path, open_for_export
+from ..planning.certificate import certificate_digest, check_digest
 from ..planning.store import PlanStoreError
 from .conversions import error_code, msg_to_cycle
 from .geometry_loader import LATCHED
@@ -125,7 +142,8 @@ def joint_trajectory_msg(arrays, frame_id=""):
 
 
 class _KnownPlan:
-    __slots__ = ("plan_id", "channel", "geometry_id", "electrode_id", "axis_names", "samples", "final_pose", "cycle")
+    __slots__ = ("plan_id", "channel", "geometry_id", "electrode_id", "axis_names", "samples", "final_pose", "cycle",
+                 "certificate", "digest")
 
     def __init__(self, msg):
         self.cycle = msg_to_cycle(msg)
@@ -136,6 +154,11 @@ class _KnownPlan:
         self.axis_names = tuple(msg.axis_path.axis_names)
         self.samples = np.array([p.positions for p in msg.axis_path.points], dtype=np.float64).reshape(
             -1, len(self.axis_names))
+        # the certificate digest as published, and that of what arrived (checked before anything is timed)
+        self.certificate = msg.certificate_sha256
+        self.digest = certificate_digest(msg.plan_id, msg.geometry_id, msg.channel, msg.electrode_id, msg.method,
+                                         self.axis_names, self.samples, np.array(msg.reference_pose).reshape(4, 4),
+                                         self.cycle)
         # the message's final pose is in the plan's channel; the kinematics want channel 0's,
         # which A's last value (channel * pitch in the planner's convention) turns back to
         final = np.array(msg.final_pose, dtype=np.float64).reshape(4, 4)
@@ -150,7 +173,12 @@ class _KnownPlan:
             final = rotation_about_x(-index_angle(self.samples[:, :3], msg.poses.poses)) @ final
         self.final_pose = final
 
+    def check_certified(self):
+        """NOT_CERTIFIED unless what arrived on ``plan`` is what was certified (digest recomputed on receipt)."""
+        check_digest(self.plan_id, self.certificate, self.digest, "the 'plan' topic")
+
     def as_plan_cycle(self):
+        self.check_certified()
         return PlanCycle(self.plan_id, self.geometry_id, self.electrode_id, self.channel, self.axis_names,
                          self.final_pose, self.samples, self.cycle)
 
@@ -180,6 +208,8 @@ class AxisBridgeNode(Node):
         self.declare_parameter("max_plans", 50)
         self.declare_parameter("plan_wait", 10.0)
         self.declare_parameter("export_dir", "")
+        self.declare_parameter("reference_tolerance_linear", 0.001)
+        self.declare_parameter("reference_tolerance_rotary", 1e-6)
         self.store, self.store_error = declare_plan_store(self)
         path = self.get_parameter("machine_file").value or _default_machine_file()
         self.machine = load_machine(path)   # a bad machine file stops the node at start, with the key named
@@ -201,7 +231,11 @@ class AxisBridgeNode(Node):
                                            callback_group=MutuallyExclusiveCallbackGroup())
 
     def on_plan(self, msg):
-        plan = _KnownPlan(msg)
+        try:
+            plan = _KnownPlan(msg)
+        except Exception as exc:  # a malformed message must not stop the bridge; ExecutePlan will not know it
+            self.get_logger().error(f"plan {msg.plan_id!r} on 'plan' not taken: {exc}")
+            return
         with self._arrived:
             self.plans[plan.plan_id] = plan
             self.plans.move_to_end(plan.plan_id)
@@ -239,19 +273,27 @@ class AxisBridgeNode(Node):
         if sequence is not None:
             arrays, what, export_name = self._sequence_trajectory(sequence, request, response)
         else:
+            # the refusals, all before anything is timed: not what was certified, not what the request names,
+            # not what the cell expects, outside the machine's travel
+            if not isinstance(plan, PlanCycle):         # from the topic (a store record was verified on reading)
+                plan.check_certified()
             if int(request.channel) != plan.channel:
                 raise EdmError(ErrorCode.INVALID_REQUEST, f"plan {plan.plan_id} is for channel {plan.channel}, "
                                                           f"the request names channel {request.channel}")
             if int(request.electrode):
                 raise EdmError(ErrorCode.INVALID_REQUEST, f"{plan.plan_id} is a plan (one electrode), not a "
                                                           f"sequence: electrode must be 0, got {request.electrode}")
+            self._check_expected(request, f"plan {plan.plan_id}", plan.geometry_id, plan.final_pose)
             what, export_name = f"plan {plan.plan_id} channel {plan.channel}", plan.plan_id
             if plan.cycle is None:
+                check_samples_travel(plan.samples, plan.axis_names, self.machine, plan.final_pose,
+                                     f"plan {plan.plan_id} (feed)")
                 arrays = plan_trajectory(plan.samples, plan.axis_names, self.machine, final_pose=plan.final_pose)
             else:
                 pc = plan if isinstance(plan, PlanCycle) else plan.as_plan_cycle()
-                arrays = time_run(program_runs([(pc.plan_id, pc.channel)], {pc.plan_id: pc})[0].legs,
-                                  self.machine)
+                legs = program_runs([(pc.plan_id, pc.channel)], {pc.plan_id: pc})[0].legs
+                self._check_legs_travel(legs)
+                arrays = time_run(legs, self.machine)
                 what += f" whole cycle ({len(plan.cycle.legs)} legs)"
         self._check_start_state(arrays)
         _fill_phases(response, arrays)
@@ -299,7 +341,7 @@ class AxisBridgeNode(Node):
         if stored is None:
             return None, ""
         self.get_logger().info(f"plan {plan_id} read from the plan store {self.store.path}")
-        return PlanCycle.of_stored(stored), ""
+        return PlanCycle.of_stored(stored, f"the plan store {self.store.path}"), ""   # NOT_CERTIFIED if altered
 
     def _sequence_from_store(self, sequence_id):
         """(StoredSequence, '') or (None, why not)."""
@@ -337,6 +379,9 @@ class AxisBridgeNode(Node):
             raise EdmError(ErrorCode.INVALID_REQUEST, f"electrode {k} ({run.label}) of {sequence.kind} "
                                                       f"{sequence.sequence_id} starts in channel {run.channels[0]}, "
                                                       f"the request names channel {request.channel}")
+        self._check_expected(request, f"{sequence.kind} {sequence.sequence_id} electrode {k} (plan "
+                                      f"{run.plan.plan_id})", sequence.geometry_id, run.plan.final_pose)
+        self._check_legs_travel(run.legs)
         arrays = time_run(run.legs, self.machine)
         response.electrode_count = len(runs)
         if k + 1 < len(runs):
@@ -349,21 +394,58 @@ class AxisBridgeNode(Node):
         return arrays, what, f"{sequence.sequence_id}.e{k}"
 
     def _export(self, name, arrays, directory, source):
+        # the name is a plan or sequence id, which a message or the store chose: a plain name inside the
+        # directory, never written through a symbolic link
+        base = str(export_path(directory, name, "plan or sequence id", (".nc", ".csv")))
         try:
-            os.makedirs(directory, exist_ok=True)
-            base = os.path.join(directory, name)
-            with open(base + ".nc", "w") as f:
+            with open_for_export(base + ".nc") as f:
                 if hasattr(source, "steps"):           # one electrode of a sequence
                     f.write(nc_program(arrays, name, source.geometry_id, arrays.phases[0].channel,
                                        arrays.phases[0].electrode_id))
                 else:
                     f.write(nc_program(arrays, source.plan_id, source.geometry_id, source.channel,
                                        source.electrode_id))
-            with open(base + ".csv", "w") as f:
+            with open_for_export(base + ".csv") as f:
                 f.write(trajectory_csv(arrays))
         except OSError as exc:
             raise EdmError(ErrorCode.FILE_ERROR, f"cannot write the NC/CSV export to {directory}: {exc}") from None
         return f"written {base}.nc and {base}.csv"
+
+    def _check_legs_travel(self, legs):
+        """Every sample of every leg inside the machine's travel, before any timing (INFEASIBLE naming the leg)."""
+        for i, leg in enumerate(legs):
+            check_samples_travel(leg.samples, leg.plan.axis_names, self.machine, leg.plan.final_pose,
+                                 f"plan {leg.plan.plan_id} channel {leg.channel} leg {i} ({leg.phase}: {leg.label})")
+
+    def _check_expected(self, request, what, geometry_id, reference_pose):
+        """INVALID_REQUEST when the plan is not for the geometry or reference pose the request expects."""
+        expected = request.expected_geometry_id
+        if expected and expected != geometry_id:
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"{what} is for geometry {geometry_id}, the request expects "
+                                                      f"geometry {expected}: nothing sent")
+        values = np.asarray(request.expected_reference_pose, dtype=np.float64)
+        if not values.size:
+            return
+        if values.size != 16 or not np.isfinite(values).all():
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"expected_reference_pose must be empty or 16 finite values "
+                                                      f"(4x4 row-major, mm), got {values.size}")
+        want, have = values.reshape(4, 4), np.asarray(reference_pose, dtype=np.float64)
+        r = want[:3, :3]
+        if np.abs(r.T @ r - np.eye(3)).max() > 1e-6 or np.linalg.det(r) < 0 or not np.array_equal(want[3], [0, 0, 0, 1]):
+            raise EdmError(ErrorCode.INVALID_REQUEST, "expected_reference_pose is not a rigid transform (rotation "
+                                                      "orthonormal to 1e-6, last row 0 0 0 1)")
+        linear = float(np.linalg.norm(have[:3, 3] - want[:3, 3]))
+        # the angle of the rotation taking one to the other
+        angle = float(np.arccos(np.clip((np.trace(have[:3, :3].T @ r) - 1.0) / 2.0, -1.0, 1.0)))
+        tol_linear = float(self.get_parameter("reference_tolerance_linear").value)
+        tol_rotary = float(self.get_parameter("reference_tolerance_rotary").value)
+        if not (linear <= tol_linear and angle <= tol_rotary):
+            raise EdmError(ErrorCode.INVALID_REQUEST,
+                           f"{what}: its reference pose (what the axis values are measured from) differs from the "
+                           f"one the request expects by {linear:.6g} mm and {angle:.6g} rad (tolerances "
+                           f"{tol_linear:g} mm, {tol_rotary:g} rad; expected translation "
+                           f"{np.round(want[:3, 3], 6).tolist()} mm, the plan's {np.round(have[:3, 3], 6).tolist()} mm): "
+                           f"nothing sent")
 
     def _check_start_state(self, arrays):
         with self._lock:

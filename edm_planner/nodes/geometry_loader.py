@@ -13,6 +13,10 @@ frame_id : str
 mesh_resolution : float
     Edge length [mm] of the published channel surface meshes (viewers only;
     nodes rebuild the exact model from model_json).
+max_yaml_bytes, max_mesh_bytes, max_table_bytes : int
+    Size limits [bytes] of the geometry YAML (file or inline), a blade mesh
+    and a table (blade sections, meridional lines): a larger file is refused
+    (FILE_ERROR) before it is parsed. Defaults 4 MiB, 200 MiB, 16 MiB.
 
 Services: ``load_geometry`` (edm_planner_msgs/LoadGeometry).
 Topics (TRANSIENT_LOCAL, depth 1): ``geometry`` (edm_planner_msgs/BliskGeometry),
@@ -36,7 +40,7 @@ from visualization_msgs.msg import MarkerArray
 
 from ..errors import EdmError, ErrorCode
 from ..geometry.blisk import CHANNEL_SURFACES
-from ..geometry.loader import GeometryMemo, load_geometry
+from ..geometry.loader import FileLimits, GeometryMemo, load_geometry
 from .runtime import spin_node
 from .conversions import error_code, matrix_to_pose, mesh_marker, mesh_to_msg, summary_to_msg
 
@@ -68,6 +72,10 @@ class GeometryLoaderNode(Node):
         self.declare_parameter("frame_id", "workpiece")
         self.declare_parameter("mesh_resolution", 1.0,
                                ParameterDescriptor(description="published surface mesh edge length [mm]"))
+        defaults = FileLimits()
+        for kind in ("yaml", "mesh", "table"):
+            self.declare_parameter(f"max_{kind}_bytes", defaults.of(kind), ParameterDescriptor(
+                description=f"largest {kind} file read for a geometry [bytes]; larger: refused before parsing"))
         self.add_on_set_parameters_callback(self._check_parameters)
         self.geometries = {}
         self._memo = GeometryMemo()          # an unchanged file is answered without building it again
@@ -94,7 +102,15 @@ class GeometryLoaderNode(Node):
                     return SetParametersResult(successful=False, reason=f"not directories: {missing}")
             if p.name == "mesh_resolution" and not 0.05 <= p.value <= 10.0:
                 return SetParametersResult(successful=False, reason="mesh_resolution must be 0.05 .. 10 mm")
+            if p.name in ("max_yaml_bytes", "max_mesh_bytes", "max_table_bytes") and \
+                    (isinstance(p.value, bool) or not isinstance(p.value, int) or p.value < 1):
+                return SetParametersResult(successful=False, reason=f"{p.name} must be a positive integer [bytes]")
         return SetParametersResult(successful=True)
+
+    @property
+    def file_limits(self):
+        """The size limits of the files read for a geometry (parameters max_*_bytes)."""
+        return FileLimits(*(int(self.get_parameter(f"max_{k}_bytes").value) for k in ("yaml", "mesh", "table")))
 
     @property
     def allowed_directories(self):
@@ -115,7 +131,7 @@ class GeometryLoaderNode(Node):
             path = os.path.join(allowed[0], path) if allowed else path
         try:
             geometry = load_geometry(path=path, text=text, allowed_dirs=allowed if sandboxed else None,
-                                     memo=self._memo)
+                                     memo=self._memo, limits=self.file_limits)
             summary = geometry.summary()
         except EdmError as exc:
             return self._fail(response, exc.code, exc.message)

@@ -80,8 +80,10 @@ class InterferenceCheckerNode(Node):
 
     def on_geometry(self, msg):
         gid = msg.summary.geometry_id
-        if gid in self.checkers:
-            return
+        with self._lock:
+            if gid in self.checkers:            # loaded again after another: the latest once more
+                self.latest = gid
+                return
         try:
             model = json.loads(msg.model_json)
             blisk = Blisk.from_dict(model)
@@ -182,9 +184,13 @@ class InterferenceCheckerNode(Node):
                 raise EdmError(ErrorCode.INVALID_REQUEST,
                                f"axis_names must be {list(AXES_5)} for this five-axis machine, "
                                f"got {list(request.axis_names)}")
-            q = np.array([list(p.positions) for p in request.axis_values], dtype=np.float64)
-            if q.ndim != 2 or q.shape[1] != 5 or len(q) == 0:
-                raise EdmError(ErrorCode.INVALID_REQUEST, "each axis value needs 5 positions (X, Y, Z mm; A, C rad)")
+            rows = [list(p.positions) for p in request.axis_values]
+            short = [i for i, row in enumerate(rows) if len(row) != 5]
+            if not rows or short:             # checked before numpy: rows of unequal length make no array
+                raise EdmError(ErrorCode.INVALID_REQUEST, "each axis value needs 5 positions (X, Y, Z mm; A, C rad)"
+                               + (f": axis_values[{short[0]}] has {len(rows[short[0]])}" if short else
+                                  ": no axis_values given"))
+            q = np.array(rows, dtype=np.float64)
             if not np.isfinite(q).all():
                 raise EdmError(ErrorCode.INVALID_REQUEST, "axis values contain NaN or infinite values")
             return FiveAxisKinematics(final_pose, checker.blisk.pitch).forward(q)

@@ -21,7 +21,8 @@ fast_spacing : float
 time_budget : float
     Default time budget of a request [s] (PlannerSettings.time_budget 0 or NaN).
 export_dir : str
-    Where ``write_export`` requests write plan exports ('' : ~/.local/share/edm_planner/plans).
+    Where ``write_export`` requests write plan exports ('' : ~/.local/share/edm_planner/plans), as
+    ``<plan id>/`` or ``<set id>/``: plain names only, never through a symbolic link (``edm_planner.paths``).
 geometry_wait : float
     How long a request waits for a geometry still being prepared [s].
 unknown_geometry_wait : float
@@ -50,6 +51,8 @@ from ..geometry.blisk import Blisk
 from ..geometry.electrode import ElectrodeDesign, design_electrodes
 from ..geometry.loader import LoadedGeometry
 from ..interference.fast import FastChannelField
+from ..paths import export_path
+from ..planning.certificate import META_KEY, NotCertifiedError, verify_record
 from ..planning.objective import Weights
 from ..interference import SURFACES
 from ..planning.plan import PlanMetrics as CorePlanMetrics
@@ -207,6 +210,7 @@ def channel_plan_msg(stored, poses, axis_path, metrics):
                        final_pose=[float(v) for v in stored.poses[-1].reshape(-1)],
                        reference_pose=[float(v) for v in np.asarray(stored.final_pose).reshape(-1)],
                        poses=poses, axis_path=axis_path, metrics=metrics,
+                       certificate_sha256=stored.meta.get(META_KEY, ""),
                        **cycle_fields(cycle, stored.meta.get("set_id", "")))
 
 
@@ -260,7 +264,8 @@ class TrajectoryPlannerNode(Node):
     def on_geometry(self, msg):
         gid = msg.summary.geometry_id
         with self._arrived:
-            if gid in self.geometries:
+            if gid in self.geometries:          # loaded again after another: the latest once more
+                self.latest = gid
                 return
             prepared = self.geometries[gid] = _Prepared(gid)
             self.latest = gid
@@ -353,9 +358,9 @@ class TrajectoryPlannerNode(Node):
             from ..planning.export import write_plan
             root = self.get_parameter("export_dir").value or os.path.join(
                 os.path.expanduser("~"), ".local", "share", "edm_planner", "plans")
-            path = os.path.join(root, plan.plan_id)
+            path = export_path(root, plan.plan_id, "plan id")        # never outside export_dir, never via a link
             write_plan(plan, path, prepared.blisk)
-            response.export_path = path
+            response.export_path = str(path)
         self.plan_pub.publish(channel_plan_msg(plan_to_stored(plan), response.poses, response.axis_path,
                                                response.metrics))
         self.get_logger().info(f"plan {plan.plan_id}: {response.message}")
@@ -424,12 +429,12 @@ class TrajectoryPlannerNode(Node):
         if request.write_export:
             root = self.get_parameter("export_dir").value or os.path.join(
                 os.path.expanduser("~"), ".local", "share", "edm_planner", "plans")
-            path = os.path.join(root, set_id)
+            path = export_path(root, set_id, "set id")
             if designer is not None:
                 write_set(result, path, prepared.blisk)
             else:
                 write_stored_set(plans, labels, meta, path, prepared.blisk)
-            response.export_path = path
+            response.export_path = str(path)
         for plan, metrics in zip(plans, response.metrics):
             self.plan_pub.publish(channel_plan_msg(plan_to_stored(plan), pose_array_msg(plan.poses, frame),
                                                    axis_path_msg(plan.axis_names, plan.samples), metrics))
@@ -443,8 +448,8 @@ class TrajectoryPlannerNode(Node):
             seq = self.store.get_sequence(set_id)
             if seq is None:
                 return None
-            return [stored_to_plan(self.store.get(pid)) for pid, _ in seq.steps], seq.meta
-        except PlanStoreError as exc:
+            return [stored_to_plan(self.store.get(pid), str(self.store.path)) for pid, _ in seq.steps], seq.meta
+        except (PlanStoreError, NotCertifiedError) as exc:
             self.get_logger().error(f"plan store: {exc.message}; designing the set anew")
             return None
 
@@ -501,8 +506,11 @@ class TrajectoryPlannerNode(Node):
         if self.store is None:
             return None
         try:
-            return self.store.find(key)
-        except PlanStoreError as exc:
+            stored = self.store.find(key)
+            if stored is not None:      # never re-serve a record that is not what was certified (or has no digest)
+                verify_record(stored, str(self.store.path))
+            return stored
+        except (PlanStoreError, NotCertifiedError) as exc:
             self.get_logger().error(f"plan store: {exc.message}; planning anew")
             return None
 
@@ -511,7 +519,7 @@ class TrajectoryPlannerNode(Node):
         stored = self._lookup(key)
         if stored is None:
             return None
-        plan = stored_to_plan(stored)
+        plan = stored_to_plan(stored, str(self.store.path))
         plan.message = f"from the plan store (planned {stored.created}): {plan.message}"
         return plan
 

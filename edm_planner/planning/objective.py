@@ -26,10 +26,11 @@ class Weights:
     total: tuple = (0.5, 0.5)                      # a3, b3
 
     def __post_init__(self):
-        for name in ("smoothness", "margin", "total"):
+        for name, count in (("smoothness", 3), ("margin", 3), ("total", 2)):
             w = np.asarray(getattr(self, name), dtype=np.float64)
-            if w.ndim != 1 or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
-                raise ValueError(f"weights.{name}: non-negative finite numbers with a positive sum, got {w}")
+            if w.shape != (count,) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
+                raise ValueError(f"weights.{name}: {count} non-negative finite numbers with a positive sum, "
+                                 f"got {w}")
             object.__setattr__(self, name, tuple(float(v) for v in w / w.sum()))
 
 

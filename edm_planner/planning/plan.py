@@ -94,18 +94,9 @@ class PlanMetrics:
         return d
 
     @classmethod
-    def from_dict(cls, d, margins=None):
-        """The metrics of :meth:`to_dict` (a stored or exported record).
-
-        Records written before the clearances had one meaning each carry
-        ``min_clearance`` (a lower bound at the certification samples only);
-        they get ``margins`` (what their certificate proves over the whole
-        path) as the lower bound, and no exact figure.
-        """
+    def from_dict(cls, d):
+        """The metrics of :meth:`to_dict` (a stored record); a clearance it lacks is NaN."""
         d = dict(d)
-        old = d.pop("min_clearance", None)
-        if old is not None and "clearance_lower_bound" not in d:
-            d["clearance_lower_bound"] = dict(zip(SURFACES, margins if margins is not None else (float("nan"),) * 4))
         for k in cls.CLEARANCES:
             v = d.get(k)
             d[k] = tuple(float(v[s]) if v and v.get(s) is not None else float("nan") for s in SURFACES)

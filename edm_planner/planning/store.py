@@ -18,6 +18,10 @@ Keys
     the geometry's content), channel, electrode id, settings and electrode
     design as requested. Equal requests find the same plan.
 
+Every record made by :func:`plan_to_stored` and :func:`roughing_to_stored` carries the plan's certificate
+digest (``meta["certificate_sha256"]``, :mod:`edm_planner.planning.certificate`); :func:`stored_to_plan` and
+``PlanCycle.of_stored`` refuse a record without one or not matching it (NOT_CERTIFIED).
+
 A channel plan's record also keeps its machining cycle (every leg's phase,
 label, samples and certified clearance, the process reach, margin and
 verdict), the removal proof of its electrode set and the set's id; records
@@ -50,6 +54,7 @@ import json
 import logging
 import os
 import pathlib
+import shutil
 import sqlite3
 import zlib
 from dataclasses import asdict, dataclass, field
@@ -99,6 +104,24 @@ CREATE TABLE IF NOT EXISTS sequences (
 """
 #: kinds of sequence: an electrode set of one channel, a whole-blisk program
 SEQUENCE_KINDS = ("electrode_set", "blisk_program")
+
+
+def _not_the_file(exc):
+    """Whether an SQLite error is of the disk or of other processes (full, I/O, permission, lock), not the file's."""
+    return (getattr(exc, "sqlite_errorname", "") or "").startswith(
+        ("SQLITE_IOERR", "SQLITE_FULL", "SQLITE_CANTOPEN", "SQLITE_READONLY", "SQLITE_PERM", "SQLITE_BUSY",
+         "SQLITE_LOCKED"))
+
+
+def _disk_note(exc, directory):
+    """`` (SQLITE_FULL, 0.0 MB free on its file system)`` of an error of the disk, else ''."""
+    if not _not_the_file(exc):
+        return ""
+    try:
+        free = f"{shutil.disk_usage(directory).free / 1e6:.1f} MB"
+    except OSError:
+        free = "unknown space"
+    return f" ({exc.sqlite_errorname}, {free} free on its file system)"
 
 
 class PlanStoreError(EdmError):
@@ -261,6 +284,9 @@ class PlanStore:
                 con.execute(_SEQUENCES_SQL)          # IF NOT EXISTS: another process may have been faster
                 con.execute("COMMIT")
         except sqlite3.DatabaseError as exc:
+            if _not_the_file(exc):         # a full disk, no permission, locked: the file itself may be fine
+                raise PlanStoreError(f"cannot open the plan store {self.path}: {exc}"
+                                     f"{_disk_note(exc, self.directory)}; the file was not changed") from None
             self._refuse(f"is not a usable SQLite database ({exc})")
         finally:
             con.close()
@@ -302,7 +328,8 @@ class PlanStore:
                 con.execute("BEGIN IMMEDIATE")
                 con.execute("INSERT OR REPLACE INTO plans VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", row)
         except sqlite3.Error as exc:
-            raise PlanStoreError(f"cannot store plan {stored.plan_id} in {self.path}: {exc}") from None
+            raise PlanStoreError(f"cannot store plan {stored.plan_id} in {self.path}: {exc}"
+                                 f"{_disk_note(exc, self.directory)}; nothing was changed") from None
         finally:
             con.close()
         log.info("stored plan %s in %s", stored.plan_id, self.path)
@@ -537,10 +564,14 @@ def open_store(directory):
 # -- channel plans ----------------------------------------------------------------------------
 
 def plan_to_stored(plan):
-    """A certified :class:`~edm_planner.planning.plan.Plan` as a record (kind "channel")."""
+    """A certified :class:`~edm_planner.planning.plan.Plan` as a record (kind "channel"), with its certificate digest.
+
+    The digest (:mod:`~edm_planner.planning.certificate`, ``meta["certificate_sha256"]``) is of the plan as it is
+    here, right after planning and certification, or as it was verified when read (:func:`stored_to_plan`).
+    """
     mesh = plan.electrode_mesh
     cycle_meta, cycle_arrays = cycle_to_record(getattr(plan, "cycle", None))
-    return StoredPlan(
+    return _sealed(StoredPlan(
         plan_id=plan.plan_id, kind="channel", geometry_id=plan.geometry_id, channel=int(plan.channel),
         electrode_id=plan.electrode_id, method=plan.options.search.method, axis_names=tuple(plan.axis_names),
         samples=np.asarray(plan.samples, dtype=np.float64), final_pose=np.asarray(plan.final_pose, np.float64),
@@ -550,7 +581,15 @@ def plan_to_stored(plan):
               "set_id": getattr(plan, "set_id", "") or "", **cycle_meta},
         arrays={"nodes": np.asarray(plan.nodes, dtype=np.float64),
                 "electrode_vertices": np.asarray(mesh.vertices, dtype=np.float64),
-                "electrode_faces": np.asarray(mesh.faces, dtype=np.int64), **cycle_arrays})
+                "electrode_faces": np.asarray(mesh.faces, dtype=np.int64), **cycle_arrays}))
+
+
+def _sealed(stored):
+    """The record with its certificate digest in ``meta`` (computed from the record itself)."""
+    from .certificate import META_KEY, record_digest
+
+    stored.meta[META_KEY] = record_digest(stored)
+    return stored
 
 
 def cycle_to_record(cycle):
@@ -586,18 +625,24 @@ def cycle_from_record(meta, arrays):
     return MachiningCycle(tuple(c["axis_names"]), legs, reach, c["margin"], c["certified"], c["message"])
 
 
-def stored_to_plan(stored):
-    """The :class:`~edm_planner.planning.plan.Plan` of a "channel" record, arrays bit for bit."""
+def stored_to_plan(stored, where="the plan store"):
+    """The :class:`~edm_planner.planning.plan.Plan` of a "channel" record, arrays bit for bit.
+
+    Raises
+    ------
+    NotCertifiedError
+        NOT_CERTIFIED: the record has no certificate digest or does not match it (altered after certification).
+    """
     import trimesh
 
+    from .certificate import verify_record
     from .plan import Plan, PlanMetrics, plan_options_from_dict
 
     if stored.kind != "channel":
         raise PlanStoreError(f"plan {stored.plan_id} is a {stored.kind} plan, not a channel plan")
+    verify_record(stored, where)
     options = plan_options_from_dict(stored.meta["options"])
-    so = options.search
-    metrics = PlanMetrics.from_dict(stored.meta["metrics"], margins=(so.margin_blade, so.margin_blade,
-                                                                     so.margin_hub_shroud, so.margin_hub_shroud))
+    metrics = PlanMetrics.from_dict(stored.meta["metrics"])
     mesh = trimesh.Trimesh(stored.arrays["electrode_vertices"], stored.arrays["electrode_faces"], process=False)
     return Plan(plan_id=stored.plan_id, error_code=ErrorCode(stored.meta["error_code"]),
                 message=stored.meta["message"], geometry_id=stored.geometry_id, channel=stored.channel,
@@ -625,7 +670,7 @@ def roughing_to_stored(result, plan_id, geometry_id):
                         f"{result.line_count} expansion lines), tool radius {result.tool_radius:.4f} mm: mean "
                         f"absolute error {result.stats_initial.mean_abs:.5f} -> {result.stats.mean_abs:.5f} mm "
                         f"({result.mae_reduction_percent:.2f} % less; the paper: 57.79 %)")}
-    return StoredPlan(
+    return _sealed(StoredPlan(
         plan_id=plan_id, kind="roughing", geometry_id=geometry_id, channel=int(result.channel), electrode_id="tool",
         method="plunge_roughing", axis_names=tuple(result.axis_names),
         samples=np.asarray(result.samples, dtype=np.float64),
@@ -635,4 +680,4 @@ def roughing_to_stored(result, plan_id, geometry_id):
                 "initial_tool_poses": np.asarray(result.initial_poses, dtype=np.float64)[order],
                 "hausdorff_initial": np.asarray(result.hausdorff_initial, dtype=np.float64)[order],
                 "hausdorff": np.asarray(result.hausdorff, dtype=np.float64)[order],
-                "bottom_index": np.asarray(result.bottom_index, dtype=np.int64)})
+                "bottom_index": np.asarray(result.bottom_index, dtype=np.int64)}))
