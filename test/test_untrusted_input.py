@@ -201,3 +201,27 @@ def test_geometry_loader_limits_are_parameters(ros, tmp_path):
     assert node.set_parameters([Parameter("max_mesh_bytes", value=200 * 2 ** 20)])[0].successful
     res, _ = load(path="mesh_blisk.yaml")
     assert res.success and res.error_code.val == MsgErrorCode.SUCCESS, res.message
+
+
+@pytest.mark.parametrize("content, words", [
+    ("a: " + "[" * 5000 + "]" * 5000, "nested"),
+    ("a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+        f"{chr(98 + i)}: &{chr(98 + i)} [{', '.join([f'*{chr(97 + i)}'] * 9)}]\n" for i in range(8)), "nodes"),
+    (b"\xff\xfe\x00garbage", "UTF-8"),
+])
+def test_a_hostile_machine_file_is_refused_with_file_error(tmp_path, content, words):
+    from edm_planner.machine.config import load_machine
+
+    path = tmp_path / "machine.yaml"
+    path.write_bytes(content if isinstance(content, bytes) else content.encode())
+    with pytest.raises(EdmError) as exc:
+        load_machine(path)
+    assert exc.value.code == ErrorCode.FILE_ERROR and words in exc.value.message
+
+
+def test_an_endless_machine_file_is_refused_at_the_size_limit():
+    from edm_planner.machine.config import MAX_MACHINE_BYTES, load_machine
+
+    with pytest.raises(EdmError) as exc:
+        load_machine("/dev/zero")
+    assert exc.value.code == ErrorCode.FILE_ERROR and str(MAX_MACHINE_BYTES) in exc.value.message

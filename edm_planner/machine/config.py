@@ -218,17 +218,34 @@ def parse_machine(doc, source="<machine>"):
                          c_pivot=pivot)
 
 
+#: largest machine YAML read [bytes] (a machine file is a few kB)
+MAX_MACHINE_BYTES = 1_000_000
+
+
 def load_machine(path):
-    """Read a machine YAML file. FILE_ERROR: unreadable or not YAML; INVALID_REQUEST: bad content."""
+    """Read a machine YAML file. FILE_ERROR: unreadable, too large or not YAML; INVALID_REQUEST: bad content.
+
+    Read as geometry YAML is (:class:`~edm_planner.geometry.loader.LimitedSafeLoader`: plain data, limits on
+    depth, aliases and expanded nodes), at most :data:`MAX_MACHINE_BYTES`.
+    """
+    from ..geometry.loader import LimitedSafeLoader
+
     path = Path(path)
     try:
-        text = path.read_text()
+        with open(path, "rb") as f:                      # at most the limit and a byte: /dev/zero ends too
+            data = f.read(MAX_MACHINE_BYTES + 1)
     except OSError as exc:
         raise EdmError(ErrorCode.FILE_ERROR, f"machine file {path}: {exc.strerror or exc}") from None
+    if len(data) > MAX_MACHINE_BYTES:
+        raise EdmError(ErrorCode.FILE_ERROR, f"machine file {path}: larger than {MAX_MACHINE_BYTES} bytes")
     try:
-        doc = yaml.safe_load(text)
+        doc = yaml.load(data.decode("utf-8"), Loader=LimitedSafeLoader)
+    except UnicodeDecodeError:
+        raise EdmError(ErrorCode.FILE_ERROR, f"machine file {path}: not UTF-8 text") from None
     except yaml.YAMLError as exc:
         raise EdmError(ErrorCode.FILE_ERROR, f"machine file {path}: not valid YAML: {exc}") from None
+    except RecursionError:
+        raise EdmError(ErrorCode.FILE_ERROR, f"machine file {path}: YAML nested too deeply to read") from None
     return parse_machine(doc, str(path))
 
 
