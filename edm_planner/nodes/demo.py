@@ -264,7 +264,7 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0):
         print(f"  set          {set_doc['delivered']}: {', '.join(res.electrode_labels)} "
               f"({'machines the channel to the tolerance' if res.success else 'NOT to the tolerance'}), "
               f"designed in {res.planning_time:.1f} s, set {res.set_id}, whole-blisk program {res.program_id}")
-        print(f"  clearance    [mm]{'':<29}" + "".join(f"{n:>10}" for n in SURFACE_NAMES))
+        print(f"  feed clearance [mm]{'':<27}" + "".join(f"{n:>10}" for n in SURFACE_NAMES))
         for label, metrics in zip(res.electrode_labels, m):
             for i, (kind, name) in enumerate((("certified lower bound, whole path", "clearance_lower_bound"),
                                               ("exact minimum, vertices at samples", "clearance_exact"))):
