@@ -34,7 +34,7 @@ bench: setup
 # 1000 CheckInterference and 100 PlanChannel calls from two clients against one set of node processes:
 # memory every 100 calls and the latency percentiles (README, Reliability).
 soak: setup
-	$(PY) -m edm_planner.bench.soak --out out/soak.json
+	$(PY) -m edm_planner.nodes.soak --out out/soak.json
 
 clean:
 	rm -rf build out .pytest_cache

@@ -27,7 +27,7 @@ def main(argv=None):
     path = pathlib.Path(args.out)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(result, indent=2))
-    print(json.dumps(result, indent=2))
+    logging.getLogger(__name__).warning("wrote %s:\n%s", path, json.dumps(result, indent=2))
     return 0
 
 

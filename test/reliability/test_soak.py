@@ -5,7 +5,7 @@
 
 import pytest
 
-from edm_planner.bench.soak import run_soak, schedule
+from edm_planner.nodes.soak import run_soak, schedule
 
 #: resident memory a node may gain over the short soak's calls after the first 25 [MB]: the loader and the
 #: checker nothing to speak of; the planner rises by about 10 MB with each of its first few plans (three

@@ -11,12 +11,13 @@ anew, and repeats of earlier requests, answered from the plan store. Every
 ``/proc/<pid>/status``); at the end the latency percentiles per kind of call.
 
 A repeated PlanChannel must return its first answer's axis path and poses bit
-for bit; every call must succeed. ``python -m edm_planner.bench.soak --out
+for bit; every call must succeed. ``python -m edm_planner.nodes.soak --out
 out/soak.json`` (``make soak``: 1000 CheckInterference, 100 PlanChannel).
 """
 
 import argparse
 import json
+import logging
 import os
 import pathlib
 import random
@@ -26,6 +27,8 @@ import threading
 import time
 
 import numpy as np
+
+_log = logging.getLogger(__name__)
 
 #: the nodes a soak runs against
 SOAK_NODES = ("geometry_loader", "interference_checker", "trajectory_planner")
@@ -119,7 +122,7 @@ def schedule(n_check, n_plan, n_distinct, blade_count, seed=7):
 
 
 def run_soak(work_dir, n_check=1000, n_plan=100, n_distinct=50, sample_every=100, cache_dir=None,
-             store_dir=None, poses_per_check=200, exact_every=10, timeout=600.0, progress=print):
+             store_dir=None, poses_per_check=200, exact_every=10, timeout=600.0, progress=_log.info):
     """Run the soak; returns the figures (JSON-safe dict).
 
     Parameters
@@ -144,7 +147,7 @@ def run_soak(work_dir, n_check=1000, n_plan=100, n_distinct=50, sample_every=100
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.node import Node
 
-    from ..nodes.demo import Bringup
+    from .demo import Bringup
 
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 30))
@@ -279,10 +282,12 @@ def run_soak(work_dir, n_check=1000, n_plan=100, n_distinct=50, sample_every=100
 
 
 def _blade_count():
-    from ..geometry.loader import load_geometry
-    from ..nodes.geometry_loader import config_directory
+    """The default blisk's blade count, from its YAML (not the whole geometry, which the nodes load)."""
+    from ..geometry.loader import parse_document
+    from .geometry_loader import config_directory
 
-    return int(load_geometry(config_directory() / "default_blisk.yaml").blisk.blade_count)
+    path = config_directory() / "default_blisk.yaml"
+    return int(parse_document(path.read_text(), str(path))["blade_count"])
 
 
 def _same_plan(a, b):
@@ -304,17 +309,17 @@ def main(argv=None):
     parser.add_argument("--distinct", type=int, default=50, help="distinct PlanChannel requests (planned anew)")
     parser.add_argument("--cache-dir", default=None, help="distance-field cache (default the user's)")
     args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stdout)
     with tempfile.TemporaryDirectory(prefix="edm_soak_") as work:
-        result = run_soak(work, args.checks, args.plans, args.distinct, cache_dir=args.cache_dir,
-                          progress=lambda m: print(m, flush=True))
+        result = run_soak(work, args.checks, args.plans, args.distinct, cache_dir=args.cache_dir)
     result["timestamp"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
     path = pathlib.Path(args.out)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(result, indent=2))
-    print(json.dumps({k: v for k, v in result.items() if k != "memory"}, indent=2))
+    _log.info("%s", json.dumps({k: v for k, v in result.items() if k != "memory"}, indent=2))
     grown = {n: g for n, g in result["rss_growth_mb"].items() if g > RSS_GROWTH_BOUND_MB}
     if grown:
-        print(f"memory grew beyond {RSS_GROWTH_BOUND_MB} MB: {grown}")
+        _log.error("memory grew beyond %s MB: %s", RSS_GROWTH_BOUND_MB, grown)
     return 0 if not result["failures"] and not result["mismatches"] and not grown else 1
 
 
