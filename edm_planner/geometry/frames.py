@@ -1,4 +1,4 @@
-"""Cylindrical <-> Cartesian coordinates and rotations about the blisk axis X.
+"""Cylindrical <-> Cartesian coordinates, rotations about the blisk axis X, distances between poses.
 
 Convention (workpiece frame W): ``y = r cos(theta)``, ``z = r sin(theta)``.
 """
@@ -49,3 +49,18 @@ def rotation_about_x(angle):
     m = np.eye(4)
     m[1, 1], m[1, 2], m[2, 1], m[2, 2] = c, -s, s, c
     return m
+
+
+def is_rigid(pose, tolerance=1e-6):
+    """Whether a 4x4 matrix is a rigid motion: orthonormal rotation (to ``tolerance``), det +1, last row 0 0 0 1."""
+    r = pose[:3, :3]
+    return bool(np.abs(r.T @ r - np.eye(3)).max() <= tolerance and np.linalg.det(r) > 0
+                and np.array_equal(pose[3], [0, 0, 0, 1]))
+
+
+def pose_difference(a, b):
+    """(distance between the origins [mm], angle of the rotation taking one to the other [rad]) of two poses."""
+    from scipy.spatial.transform import Rotation
+
+    return (float(np.linalg.norm(a[:3, 3] - b[:3, 3])),
+            float(Rotation.from_matrix(a[:3, :3].T @ b[:3, :3]).magnitude()))

@@ -101,7 +101,7 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from ..errors import EdmError, ErrorCode
-from ..geometry.frames import rotation_about_x
+from ..geometry.frames import is_rigid, pose_difference, rotation_about_x
 from ..machine.config import LINEAR, default_machine_path, load_machine
 from ..machine.nc import nc_program, trajectory_csv
 from ..machine.trajectory import check_samples_travel, plan_trajectory, time_run
@@ -430,13 +430,10 @@ class AxisBridgeNode(Node):
             raise EdmError(ErrorCode.INVALID_REQUEST, f"expected_reference_pose must be empty or 16 finite values "
                                                       f"(4x4 row-major, mm), got {values.size}")
         want, have = values.reshape(4, 4), np.asarray(reference_pose, dtype=np.float64)
-        r = want[:3, :3]
-        if np.abs(r.T @ r - np.eye(3)).max() > 1e-6 or np.linalg.det(r) < 0 or not np.array_equal(want[3], [0, 0, 0, 1]):
+        if not is_rigid(want):
             raise EdmError(ErrorCode.INVALID_REQUEST, "expected_reference_pose is not a rigid transform (rotation "
                                                       "orthonormal to 1e-6, last row 0 0 0 1)")
-        linear = float(np.linalg.norm(have[:3, 3] - want[:3, 3]))
-        # the angle of the rotation taking one to the other
-        angle = float(np.arccos(np.clip((np.trace(have[:3, :3].T @ r) - 1.0) / 2.0, -1.0, 1.0)))
+        linear, angle = pose_difference(have, want)
         tol_linear = float(self.get_parameter("reference_tolerance_linear").value)
         tol_rotary = float(self.get_parameter("reference_tolerance_rotary").value)
         if not (linear <= tol_linear and angle <= tol_rotary):
