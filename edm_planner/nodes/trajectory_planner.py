@@ -50,11 +50,11 @@ from ..errors import EdmError, ErrorCode
 from ..geometry.blisk import Blisk
 from ..geometry.electrode import ElectrodeDesign, design_electrodes
 from ..geometry.loader import LoadedGeometry
+from ..interference import SURFACES
 from ..interference.fast import FastChannelField
 from ..paths import export_path
 from ..planning.certificate import META_KEY, NotCertifiedError, verify_record
 from ..planning.objective import Weights
-from ..interference import SURFACES
 from ..planning.plan import PlanMetrics as CorePlanMetrics
 from ..planning.plan import PlanOptions
 from ..planning.planner import plan_channel
