@@ -347,6 +347,39 @@ def coarse_field(blisk, cache_dir, key):
     """A quick field for the cache tests (0.6 mm, few error samples)."""
     return FastChannelField(blisk, spacing=0.6, cache_dir=cache_dir, cache_key=key, error_samples=300)
 
+def test_blocked_pose_kernels_equal_the_per_point_paths_on_every_kind_of_point(default, field):
+    """The pose kernels' vectorised stages (cells, loads, minima) give bit for bit the per-point kernel's
+    values on every path a point can take: the common case, a cell marked for the exact solver (blade
+    noses), outside the blade grid (past the blades, beyond its angles) and outside the hub/shroud table;
+    over block boundaries (a point count that is no multiple of the block) and in channel k."""
+    b = default.blisk
+    (gx0, gx1), (gr0, gr1), _ = field.grid_bounds
+    rng = np.random.default_rng(81)
+    n = 3 * field_query._BLOCK + 77
+    x = rng.uniform(gx0 - 8, gx1 + 8, n)
+    r = rng.uniform(gr0 - 3, gr1 + 3, n)
+    th = rng.uniform(-0.6, 0.6, n)
+    pts = cylindrical_to_cartesian(x, r, th)
+    answered = field.fast_path(pts)
+    inside = field.inside_grid(pts)
+    cells = field._points(pts, 0, 0)
+    assert answered.sum() > n // 4 and (~answered).sum() > 50 and (~inside).sum() > n // 4
+    for channel in (0, 3):
+        turn = rotation_about_x(channel * b.pitch)
+        poses = np.repeat(turn[None], 3, axis=0)
+        poses[1, :3, 3] += [0.05, -0.02, 0.03]
+        poses[2, :3, 3] += [12.0, 0.0, 0.0]
+        # the points placed in the kernels' own order of operations (row . point + offset), so that the
+        # comparison is bit for bit
+        placed = [sum(pts[:, j, None] * p[None, :3, j] for j in range(3)) + p[:3, 3] for p in poses]
+        ref = np.stack([field.clearances(w, channel) for w in placed])
+        np.testing.assert_array_equal(field.posed_clearances(poses, pts, channel), ref)
+        low, arg = field.pose_clearances(poses, pts, channel)
+        np.testing.assert_array_equal(low, ref.min(axis=1))
+        np.testing.assert_array_equal(ref[np.arange(3)[:, None], arg, np.arange(4)], low)
+    np.testing.assert_array_equal(field.posed_clearances(np.eye(4)[None], pts, 0)[0], cells)
+
+
 
 def test_cache_round_trip_and_corrupt_file(default, tmp_path, caplog):
     b = default.blisk
