@@ -29,7 +29,7 @@ test-fast: setup
 	$(PY) -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS) test
 
 bench: setup
-	$(PY) -m edm_planner.bench --out out/bench.json
+	$(PY) -m edm_planner.bench --out out/bench.json $(BENCH_ARGS)
 
 # 1000 CheckInterference and 100 PlanChannel calls from two clients against one set of node processes:
 # memory every 100 calls and the latency percentiles (README, Reliability).

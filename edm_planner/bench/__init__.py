@@ -306,3 +306,13 @@ def bench_electrode_set():
 
 
 SUITES["electrode_set"] = bench_electrode_set
+
+
+def bench_speed():
+    """Issue 13: the speed targets where users wait (``edm_planner.bench.speed``)."""
+    from .speed import bench_speed as run
+
+    return run()
+
+
+SUITES["speed"] = bench_speed

@@ -1,24 +1,29 @@
-"""The service round-trip benchmark: nodes in this process, a client over DDS on loopback."""
+"""Service round-trip benchmarks: nodes in this process, a client over DDS on loopback.
 
+Every figure is the median of ``repeat`` calls after one warm-up call
+(numba's first call, DDS discovery and the first reply's allocations are not
+timed).
+"""
+
+import contextlib
 import time
 
 import numpy as np
 
 
-def service_round_trip(n_poses, poses_near, repeat=5):
-    """Median round trip of CheckInterference (fast method) over DDS, nodes in this process."""
+@contextlib.contextmanager
+def _nodes_in_process():
+    """geometry_loader and interference_checker spinning in this process, and a client node."""
     import os
     import threading
 
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     os.environ.setdefault("ROS_DOMAIN_ID", str(101 - os.getpid() % 50))
     import rclpy
-    from edm_planner_msgs.srv import CheckInterference
     from rclpy.context import Context
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.node import Node
 
-    from .conversions import matrix_to_pose
     from .geometry_loader import GeometryLoaderNode
     from .interference_checker import InterferenceCheckerNode
 
@@ -36,23 +41,66 @@ def service_round_trip(n_poses, poses_near, repeat=5):
         deadline = time.monotonic() + 120
         while not checker.checkers and time.monotonic() < deadline:
             time.sleep(0.1)
-        gid, ch = next(iter(checker.checkers.items()))
-        ch.fast                                                  # field built before timing
-        final = next(iter(ch.electrodes.values()))[1]
-        req = CheckInterference.Request(geometry_id=gid, method=CheckInterference.Request.METHOD_FAST)
-        req.poses = [matrix_to_pose(p) for p in poses_near(final, n_poses)]
-        cli = client.create_client(CheckInterference, "check_interference")
-        cli.wait_for_service(timeout_sec=30)
-        times = []
-        for _ in range(repeat):
-            t = time.perf_counter()
-            fut = cli.call_async(req)
-            while not fut.done():
-                time.sleep(0.0005)
-            times.append(time.perf_counter() - t)
-        return round(1e3 * float(np.median(times)), 1)
+        if not checker.checkers:
+            raise RuntimeError("the interference_checker received no geometry within 120 s")
+        yield loader, checker, client
     finally:
         ex.shutdown()
         for node in (loader, checker, client):
             node.destroy_node()
         rclpy.try_shutdown(context=ctx)
+
+
+def _median_call_ms(client, srv_type, name, request, repeat):
+    """Median wall time [ms] of ``repeat`` calls after one untimed call; the last response."""
+    cli = client.create_client(srv_type, name)
+    if not cli.wait_for_service(timeout_sec=30):
+        raise RuntimeError(f"service {name} not available")
+
+    def call():
+        fut = cli.call_async(request)
+        while not fut.done():
+            time.sleep(0.0005)
+        return fut.result()
+
+    call()
+    times = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        response = call()
+        times.append(time.perf_counter() - t)
+    return round(1e3 * float(np.median(times)), 1), response
+
+
+def service_round_trip(n_poses, poses_near, repeat=7):
+    """Median round trip [ms] of CheckInterference (fast method) of ``n_poses`` poses near the final pose."""
+    from edm_planner_msgs.srv import CheckInterference
+
+    from .conversions import matrix_to_pose
+
+    with _nodes_in_process() as (_, checker, client):
+        gid, ch = next(iter(checker.checkers.items()))
+        ch.fast                                                  # field built before timing
+        final = next(iter(ch.electrodes.values()))[1]
+        req = CheckInterference.Request(geometry_id=gid, method=CheckInterference.Request.METHOD_FAST)
+        req.poses = [matrix_to_pose(p) for p in poses_near(final, n_poses)]
+        ms, response = _median_call_ms(client, CheckInterference, "check_interference", req, repeat)
+        if response.error_code.val != 0 or len(response.clearances) != n_poses:
+            raise RuntimeError(f"CheckInterference failed: {response.message}")
+        return ms
+
+
+def load_geometry_round_trip(path, repeat=7):
+    """Median round trip [ms] of LoadGeometry of a file the geometry_loader has loaded already.
+
+    The node loads its default file when it starts; the timed calls name
+    the same unchanged file, which it answers from memory by content hash.
+    """
+    from edm_planner_msgs.srv import LoadGeometry
+
+    with _nodes_in_process() as (_, _, client):
+        ms, response = _median_call_ms(client, LoadGeometry, "load_geometry", LoadGeometry.Request(path=str(path)),
+                                       repeat)
+        if not response.success:
+            raise RuntimeError(f"LoadGeometry failed: {response.message}")
+        return ms
