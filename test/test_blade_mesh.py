@@ -17,7 +17,7 @@ from edm_planner.geometry.blade_mesh import (
     load_blade_mesh,
     mesh_to_sections,
 )
-from edm_planner.geometry.blisk import Blisk, wall_overlap
+from edm_planner.geometry.blisk import Blisk, mesh_slice_overlap
 from edm_planner.geometry.frames import cylindrical_to_cartesian, rotation_about_x
 from edm_planner.geometry.loader import load_geometry
 from edm_planner.geometry.profiles import RevolutionProfile
@@ -457,7 +457,7 @@ def test_mesh_to_sections_is_rotation_equivariant(fine_blade):
 # CAD blades as they come: run past the hub and the shroud, closed by caps of
 # any shape. The swept blade on its cone stands between a conical hub
 # r = 100 + 0.08 x (its s = 0 line) and a conical shroud 19.68 mm above (its
-# s = 1 line); the wall overlap is 2 % of that height, 0.3936 mm.
+# s = 1 line); a mesh is sliced up to 3 % of that height past them, 0.5904 mm.
 # --------------------------------------------------------------------------
 
 SLOPE = CONE / CHORD                        # dr/dx of the hub and the shroud
@@ -608,8 +608,8 @@ def _check_past_walls(mesh, bound, extension, exact_blisk):
     reach = (extension - 0.01, extension + 0.1) if np.isscalar(extension) else extension
     extension = reach[0]
     hub, shroud = _walls()
-    overlap = wall_overlap(hub, shroud)
-    assert overlap == pytest.approx(0.02 * HEIGHT)
+    overlap = mesh_slice_overlap(hub, shroud)
+    assert overlap == pytest.approx(0.03 * HEIGHT)
     sections, report = mesh_to_sections(mesh, 25, 81, hub=hub, shroud=shroud, with_report=True)
     assert _check_against_analytic(sections, True, 0.0) < bound
     hub_r, shroud_r = hub.radius_at(sections.x[0]), shroud.radius_at(sections.x[-1])
@@ -687,11 +687,11 @@ def test_yaml_mesh_file_short_form_loads_a_blade_past_the_walls(tmp_path, exact_
     info = geometry.info()
     assert set(geometry.summary()) < set(info)              # the summary stays the message's fields
     assert info["input_mesh_clipped_to_hub"] == info["input_mesh_clipped_to_shroud"] == "all"
-    assert info["input_mesh_wall_overlap_mm"] == pytest.approx(0.02 * HEIGHT)
+    assert info["input_mesh_wall_overlap_mm"] == pytest.approx(0.03 * HEIGHT)
     assert 1.49 < info["input_mesh_beyond_hub_mm"][0] and 1.49 < info["input_mesh_beyond_shroud_mm"][0]
     lo, hi = info["input_mesh_radial_extent_mm"]
-    assert lo < info["input_mesh_sliced_hub_side_radius_mm"][0] - 1.0
-    assert hi > info["input_mesh_sliced_tip_side_radius_mm"][1] + 1.0
+    assert lo < info["input_mesh_sliced_hub_side_radius_mm"][0] - 0.8      # 1.5 mm past, sliced 0.59 mm past
+    assert hi > info["input_mesh_sliced_tip_side_radius_mm"][1] + 0.8
     # the long form gives the same geometry; neither a list nor a number is a mesh file
     long_form = load_geometry(text=text.replace("mesh: blade.stl", "mesh: {file: blade.stl}"), base_dir=tmp_path)
     np.testing.assert_array_equal(long_form.blisk.blade.theta_plus, blisk.blade.theta_plus)
@@ -810,5 +810,5 @@ def test_a_split_or_self_intersecting_blade_past_the_walls_is_refused(defect, me
         mesh_to_sections(mesh, 25, 81, hub=hub, shroud=shroud)
     assert re.search(message, str(err.value))
     x, r = (float(v) for v in re.search(r"x=([-\d.]+) mm, r=([\d.]+) mm", str(err.value)).groups())
-    overlap = wall_overlap(hub, shroud)
+    overlap = mesh_slice_overlap(hub, shroud)
     assert hub.radius_at(x) - overlap - 1e-3 <= r <= shroud.radius_at(x) + overlap + 1e-3

@@ -221,14 +221,27 @@ def test_mesh_blisk_loads_and_matches_the_default(default, mesh_geo):
     assert s["blade_count"] == 60
     assert s["geometry_id"] != d["geometry_id"]
     # figures over the blade's whole extent depend on how far it runs into hub and shroud: the parametric
-    # blade 3 % of the channel height, the STL's sliced to the model's 2 % overlap (issue 14); within the
-    # channel the two agree to the faceting
+    # blade 3 % of the channel height, the STL's sliced as far (blisk.mesh_slice_overlap); slicing it
+    # only to the 2 % wall overlap moved them by up to 0.03 mm and changed the mesh blisk's electrode set
     for key in ("hub_radius_min", "hub_radius_max", "shroud_radius_min", "shroud_radius_max"):
-        assert s[key] == pytest.approx(d[key], abs=5e-3), key
+        assert s[key] == pytest.approx(d[key], abs=2e-3), key
     for key in ("axial_min", "axial_max", "max_blade_thickness"):
-        assert s[key] == pytest.approx(d[key], abs=0.03), key
+        assert s[key] == pytest.approx(d[key], abs=0.01), key
     assert s["min_channel_width"] == pytest.approx(d["min_channel_width"], abs=0.005)
-    assert s["electrode_volume"][0] == pytest.approx(d["electrode_volume"][0], rel=3e-3)
+    assert s["electrode_volume"][0] == pytest.approx(d["electrode_volume"][0], rel=1e-3)
+
+
+def test_mesh_blisk_gives_the_set_designer_the_default_blades_largest_reduction(default, mesh_geo):
+    """The electrode set's largest circumferential reduction comes from the narrowest channel angle over
+    all blade sections, those inside the walls included: the mesh blisk must give the parametric one's
+    (sliced only to the 2 % wall overlap it gave 0.6 % more, and another electrode set)."""
+    def widest_gap(b):
+        return float(np.min(b.pitch - (b.blade.theta_plus - b.blade.theta_minus)))
+
+    assert widest_gap(mesh_geo.blisk) == pytest.approx(widest_gap(default.blisk), rel=2e-3)       # 0.08 %
+    for end in (0, 1):
+        assert mesh_geo.blisk.full_span_axial_range[end] == pytest.approx(default.blisk.full_span_axial_range[end],
+                                                                          abs=0.01)
 
 
 def test_mesh_stl_faceting_bounds_the_wall_angle_error(default, mesh_geo):

@@ -22,16 +22,24 @@ _log = logging.getLogger(__name__)
 BLISKS = ("default_blisk", "rotor37", "mesh_blisk")
 
 
-def cycle_times(plans, blade_count, pitch, machine):
-    """(per electrode: one channel's cycle [s], whole blisk [s]) on ``machine``."""
+def cycle_times(plans, blade_count, pitch, machine, labels=None):
+    """(per electrode: one channel's cycle [s], whole blisk [s]) on ``machine``.
+
+    ``labels`` names the electrodes (the set's piece labels, in the order of
+    ``plans``); without them, the plans' electrode ids, which the pieces of a
+    "three axial pieces" set share ("main").
+    """
     from ..machine.trajectory import time_run
     from ..machining.program import PlanCycle, blisk_program_steps, program_runs
 
+    labels = [p.electrode_id for p in plans] if labels is None else list(labels)
+    if len(labels) != len(plans) or len(set(labels)) != len(labels):
+        raise ValueError(f"cycle_times: one distinct label per plan, got {labels}")
     cycles = {p.plan_id: PlanCycle.of_plan(p) for p in plans}
     per_channel = {}
-    for p in plans:
+    for label, p in zip(labels, plans):
         (run,) = program_runs([(p.plan_id, p.channel)], cycles, pitch)
-        per_channel[p.electrode_id] = float(time_run(run.legs, machine).duration)
+        per_channel[label] = float(time_run(run.legs, machine).duration)
     cache = {}
     runs = program_runs(blisk_program_steps([p.plan_id for p in plans], blade_count), cycles, pitch)
     whole = sum(float(time_run(run.legs, machine, cache=cache).duration) for run in runs)
@@ -64,7 +72,8 @@ def bench_electrode_set(blisks=BLISKS):
                                     "radial_reduction_mm": round(p.design.radial_reduction, 3),
                                     "volume_mm3": round(p.volume, 1)} for p in chosen.pieces]
             entry["removal"] = chosen.removal.to_dict()
-            per_channel, whole = cycle_times(result.plans, g.blisk.blade_count, g.blisk.pitch, machine)
+            per_channel, whole = cycle_times(result.plans, g.blisk.blade_count, g.blisk.pitch, machine,
+                                             labels=[p.label for p in chosen.pieces])
             entry["cycle_s_per_channel"] = {k: round(v, 1) for k, v in per_channel.items()}
             entry["whole_blisk_s"] = round(whole, 1)
             entry["meets_targets"] = {

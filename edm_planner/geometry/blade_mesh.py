@@ -708,7 +708,8 @@ def mesh_to_sections(mesh, n_sections=25, n_stations=81, *, hub=None, shroud=Non
         without profiles (:class:`~.blisk.Blisk` then extends it).
     overlap : float, optional
         How far beyond the walls to slice [mm]; default
-        :func:`~.blisk.wall_overlap` (the overlap :class:`~.blisk.Blisk`
+        :func:`~.blisk.mesh_slice_overlap` (3 % of the smallest channel
+        height, more than the :func:`~.blisk.wall_overlap` :class:`~.blisk.Blisk`
         extends its blade by).
     span_margin : float
         Inset of the first and last section from the footprint's inner and
@@ -789,8 +790,8 @@ def mesh_to_sections(mesh, n_sections=25, n_stations=81, *, hub=None, shroud=Non
     walls = hub is not None
     if walls:
         if overlap is None:
-            from .blisk import wall_overlap  # blisk imports this module
-            overlap = wall_overlap(hub, shroud)
+            from .blisk import mesh_slice_overlap  # blisk imports this module
+            overlap = mesh_slice_overlap(hub, shroud)
         overlap = float(overlap)
         if not (np.isfinite(overlap) and overlap >= 0):
             raise GeometryError(f"mesh_to_sections: overlap must be a finite length >= 0 mm, got {overlap!r}")

@@ -52,6 +52,26 @@ def wall_overlap(hub, shroud):
     return WALL_OVERLAP_FRACTION * channel_height_range(hub, shroud)[0]
 
 
+#: how far a blade mesh is sliced beyond hub and shroud (:func:`mesh_slice_overlap`), as a fraction of
+#: the smallest channel height: the parametric blade's default ``span_extension``
+MESH_SLICE_FRACTION = 0.03
+
+
+def mesh_slice_overlap(hub, shroud):
+    """How far :func:`~.blade_mesh.mesh_to_sections` slices a blade mesh beyond hub and shroud [mm].
+
+    ``MESH_SLICE_FRACTION`` (3 %) of the smallest channel height, more than the
+    :func:`wall_overlap` (2 %) every blade is extended to: the blade's sections
+    inside the walls count where a figure is taken over all sections (the
+    widest angular blade thickness behind the set designer's largest
+    circumferential reduction, :attr:`Blisk.full_span_axial_range`), so a mesh
+    of a parametric blade (continued 3 % into the walls by default) is sliced
+    as far as that blade runs and reproduces those figures, not only its walls
+    inside the channel. Still well inside end caps a CAD blade has past the walls.
+    """
+    return MESH_SLICE_FRACTION * channel_height_range(hub, shroud)[0]
+
+
 def extend_to_walls(sections, hub, shroud, overlap):
     """Extend a blade whose end sections stop at (or short of) the hub or shroud.
 

@@ -15,7 +15,7 @@ YAML schema (mm, rad; file paths relative to the YAML's directory)::
 
 A document holding only the blisk keys loads with the default electrode design.
 A blade mesh is sliced only over the span the channel needs (hub to shroud
-plus the overlap the blisk extends its blade by, see ``blisk.wall_overlap``),
+plus 3 % of the smallest channel height, see ``blisk.mesh_slice_overlap``),
 so it may run past the walls and be closed there by caps of any shape outside
 that span; what was sliced is in :meth:`LoadedGeometry.info` (``edm-plan
 geometry info``).
@@ -34,7 +34,7 @@ import yaml
 
 from ..errors import GeometryError, GeometryFileError
 from .blade_mesh import load_blade_mesh, mesh_to_sections
-from .blisk import Blisk, validate_profiles, wall_overlap
+from .blisk import Blisk, mesh_slice_overlap, validate_profiles
 from .centerline import channel_centerline
 from .electrode import ElectrodeDesign, design_electrodes
 from .parametric import parse_parametric
@@ -291,7 +291,7 @@ def _blade(spec, hub, shroud, files):
             raise GeometryError(f"blade.mesh.{key}: must be an integer in {lo} .. 1000, got {v!r}")
         counts[key] = v
     sections, report = mesh_to_sections(mesh, counts["section_count"], counts["station_count"],
-                                        hub=hub, shroud=shroud, overlap=wall_overlap(hub, shroud),
+                                        hub=hub, shroud=shroud, overlap=mesh_slice_overlap(hub, shroud),
                                         with_report=True)
     return sections, source, report
 
