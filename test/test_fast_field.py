@@ -347,25 +347,6 @@ def coarse_field(blisk, cache_dir, key):
     """A quick field for the cache tests (0.6 mm, few error samples)."""
     return FastChannelField(blisk, spacing=0.6, cache_dir=cache_dir, cache_key=key, error_samples=300)
 
-def test_fma32_rounds_once():
-    """The interpolation's fused multiply-add: a * b + c rounded once, where two roundings give another
-    float32 (a product whose last bit is a tie lost in the float32 product)."""
-    import numba
-
-    from edm_planner.interference.fma import fma32
-
-    @numba.njit
-    def fused(a, b, c):
-        return fma32(a, b, c)
-
-    a = np.float32(1 + 2.0 ** -12)
-    c = np.float32(-(1 + 2.0 ** -11))
-    assert a * a + c == 0.0                                    # two roundings: the 2^-24 of a^2 is lost
-    assert fused(a, a, c) == np.float32(2.0 ** -24)            # one rounding: a^2 + c exactly
-    with pytest.raises(numba.TypingError):
-        fused(1.0, 2.0, 3.0)                                   # float64: refused, not silently widened
-
-
 def test_blocked_pose_kernels_equal_the_per_point_paths_on_every_kind_of_point(default, field):
     """The pose kernels' vectorised stages (cells, loads, minima) give bit for bit the per-point kernel's
     values on every path a point can take: the common case, a cell marked for the exact solver (blade

@@ -12,7 +12,7 @@ import numpy as np
 
 
 #: format of the cached arrays; bump when the layout or the fill changes
-CACHE_VERSION = "edm_planner.fast_field/6"
+CACHE_VERSION = "edm_planner.fast_field/5"
 
 
 #: accuracy band the error bound is measured in [mm]

@@ -15,22 +15,10 @@ import numba
 import numpy as np
 
 from ..geometry.spline_kernels import new_work
-from .fma import fma32
 from .field_params import (
     ACCURATE_WITHIN, _ATAN, _CA, _FR0, _FR1, _FX0, _FX1, _HHR, _HHX, _HR, _HR0, _HT, _HX, _HX0, _IHHR,
     _IHHX, _IHR, _IHT, _IHX, _NHR, _NHX, _NR, _NT, _NX, _R0, _SA, _T0, _TC, _TWO_PI, _X0)
 from .exact_solvers import _exact_blade, _exact_surface, _profile_signed
-
-
-@numba.njit(cache=True, inline="always")
-def _lerp(a, b, w):
-    """a + w (b - a) in float32 with one rounding of the product and sum (an explicit fused multiply-add).
-
-    Explicit, not LLVM's contraction: contraction is decided per context, so
-    the per-point and the vectorised block paths could round differently;
-    the intrinsic gives both the same bits.
-    """
-    return fma32(w, b - a, a)
 
 
 @numba.njit(cache=True, inline="always")
@@ -87,20 +75,20 @@ def _fast_point(x, y, z, flat, hs, fp, ip):
     b1 = b0 + sr
     b2 = b0 + sx
     b3 = b2 + sr
-    s00 = _lerp(flat[b0], flat[b0 + two], wt)
-    p00 = _lerp(flat[b0 + one], flat[b0 + three], wt)
-    s01 = _lerp(flat[b1], flat[b1 + two], wt)
-    p01 = _lerp(flat[b1 + one], flat[b1 + three], wt)
-    s10 = _lerp(flat[b2], flat[b2 + two], wt)
-    p10 = _lerp(flat[b2 + one], flat[b2 + three], wt)
-    s11 = _lerp(flat[b3], flat[b3 + two], wt)
-    p11 = _lerp(flat[b3 + one], flat[b3 + three], wt)
-    s0 = _lerp(s00, s01, wr)
-    s1 = _lerp(s10, s11, wr)
-    p0 = _lerp(p00, p01, wr)
-    p1 = _lerp(p10, p11, wr)
-    s = _lerp(s0, s1, wx)
-    p = _lerp(p0, p1, wx)
+    s00 = flat[b0] + wt * (flat[b0 + two] - flat[b0])
+    p00 = flat[b0 + one] + wt * (flat[b0 + three] - flat[b0 + one])
+    s01 = flat[b1] + wt * (flat[b1 + two] - flat[b1])
+    p01 = flat[b1 + one] + wt * (flat[b1 + three] - flat[b1 + one])
+    s10 = flat[b2] + wt * (flat[b2 + two] - flat[b2])
+    p10 = flat[b2 + one] + wt * (flat[b2 + three] - flat[b2 + one])
+    s11 = flat[b3] + wt * (flat[b3 + two] - flat[b3])
+    p11 = flat[b3 + one] + wt * (flat[b3 + three] - flat[b3 + one])
+    s0 = s00 + wr * (s01 - s00)
+    s1 = s10 + wr * (s11 - s10)
+    p0 = p00 + wr * (p01 - p00)
+    p1 = p10 + wr * (p11 - p10)
+    s = s0 + wx * (s1 - s0)
+    p = p0 + wx * (p1 - p0)
     if s != s or p != p:
         return nan, nan, nan, nan, False
     sb, pb = float(s), float(p)
@@ -114,11 +102,11 @@ def _fast_point(x, y, z, flat, hs, fp, ip):
     hsr = np.uint64(2 * ip[_NHR])
     c0 = np.uint64(jx) * hsr + np.uint64(jr) * two
     c1 = c0 + hsr
-    h0 = _lerp(hs[c0], hs[c0 + two], ar)
-    h1 = _lerp(hs[c1], hs[c1 + two], ar)
-    k0 = _lerp(hs[c0 + one], hs[c0 + three], ar)
-    k1 = _lerp(hs[c1 + one], hs[c1 + three], ar)
-    return sb, pb, float(_lerp(h0, h1, ax)), float(_lerp(k0, k1, ax)), True
+    h0 = hs[c0] + ar * (hs[c0 + two] - hs[c0])
+    h1 = hs[c1] + ar * (hs[c1 + two] - hs[c1])
+    k0 = hs[c0 + one] + ar * (hs[c0 + three] - hs[c0 + one])
+    k1 = hs[c1 + one] + ar * (hs[c1 + three] - hs[c1 + one])
+    return sb, pb, float(h0 + ax * (h1 - h0)), float(k0 + ax * (k1 - k0)), True
 
 
 @numba.njit(cache=True)
@@ -317,29 +305,29 @@ def _block_values(n, flat, hs, ipt, cell, weight, values):
         b1 = b0 + sr
         b2 = b0 + sx
         b3 = b2 + sr
-        s00 = _lerp(flat[b0], flat[b0 + two], wt)
-        p00 = _lerp(flat[b0 + one], flat[b0 + three], wt)
-        s01 = _lerp(flat[b1], flat[b1 + two], wt)
-        p01 = _lerp(flat[b1 + one], flat[b1 + three], wt)
-        s10 = _lerp(flat[b2], flat[b2 + two], wt)
-        p10 = _lerp(flat[b2 + one], flat[b2 + three], wt)
-        s11 = _lerp(flat[b3], flat[b3 + two], wt)
-        p11 = _lerp(flat[b3 + one], flat[b3 + three], wt)
-        s0 = _lerp(s00, s01, wr)
-        s1 = _lerp(s10, s11, wr)
-        p0 = _lerp(p00, p01, wr)
-        p1 = _lerp(p10, p11, wr)
-        values[0, i] = _lerp(s0, s1, wx)
-        values[1, i] = _lerp(p0, p1, wx)
+        s00 = flat[b0] + wt * (flat[b0 + two] - flat[b0])
+        p00 = flat[b0 + one] + wt * (flat[b0 + three] - flat[b0 + one])
+        s01 = flat[b1] + wt * (flat[b1 + two] - flat[b1])
+        p01 = flat[b1 + one] + wt * (flat[b1 + three] - flat[b1 + one])
+        s10 = flat[b2] + wt * (flat[b2 + two] - flat[b2])
+        p10 = flat[b2 + one] + wt * (flat[b2 + three] - flat[b2 + one])
+        s11 = flat[b3] + wt * (flat[b3 + two] - flat[b3])
+        p11 = flat[b3 + one] + wt * (flat[b3 + three] - flat[b3 + one])
+        s0 = s00 + wr * (s01 - s00)
+        s1 = s10 + wr * (s11 - s10)
+        p0 = p00 + wr * (p01 - p00)
+        p1 = p10 + wr * (p11 - p10)
+        values[0, i] = s0 + wx * (s1 - s0)
+        values[1, i] = p0 + wx * (p1 - p0)
         ax, ar = weight[3, i], weight[4, i]
         c0 = np.uint64(cell[1, i])
         c1 = c0 + hsr
-        h0 = _lerp(hs[c0], hs[c0 + two], ar)
-        h1 = _lerp(hs[c1], hs[c1 + two], ar)
-        k0 = _lerp(hs[c0 + one], hs[c0 + three], ar)
-        k1 = _lerp(hs[c1 + one], hs[c1 + three], ar)
-        values[2, i] = _lerp(h0, h1, ax)
-        values[3, i] = _lerp(k0, k1, ax)
+        h0 = hs[c0] + ar * (hs[c0 + two] - hs[c0])
+        h1 = hs[c1] + ar * (hs[c1 + two] - hs[c1])
+        k0 = hs[c0 + one] + ar * (hs[c0 + three] - hs[c0 + one])
+        k1 = hs[c1 + one] + ar * (hs[c1 + three] - hs[c1 + one])
+        values[2, i] = h0 + ax * (h1 - h0)
+        values[3, i] = k0 + ax * (k1 - k0)
 
 
 @numba.njit(cache=True, inline="always")
