@@ -347,6 +347,32 @@ def coarse_field(blisk, cache_dir, key):
     """A quick field for the cache tests (0.6 mm, few error samples)."""
     return FastChannelField(blisk, spacing=0.6, cache_dir=cache_dir, cache_key=key, error_samples=300)
 
+def test_prefetch_is_a_prefetch_instruction_and_changes_nothing():
+    """The pose kernels' prefetch (an LLVM intrinsic numba lacks) compiles to the CPU's prefetch instruction
+    and leaves every value as it was."""
+    import platform
+
+    import numba
+
+    from edm_planner.interference.prefetch import prefetch
+
+    @numba.njit
+    def gather(a, idx):
+        total = 0.0
+        for i in range(len(idx)):
+            prefetch(a, idx[(i + 4) % len(idx)])
+            total += a[idx[i]]
+        return total
+
+    a = np.arange(1000, dtype=np.float32)
+    idx = np.array([3, 999, 0, 512, 77])
+    assert gather(a, idx) == float(a[idx].sum())
+    if platform.machine() in ("x86_64", "AMD64"):
+        assert "prefetch" in gather.inspect_asm(gather.signatures[0])
+    with pytest.raises(numba.TypingError):
+        numba.njit(lambda a: prefetch(a, 1.5))(a)                    # a float index is refused
+
+
 def test_blocked_pose_kernels_equal_the_per_point_paths_on_every_kind_of_point(default, field):
     """The pose kernels' vectorised stages (cells, loads, minima) give bit for bit the per-point kernel's
     values on every path a point can take: the common case, a cell marked for the exact solver (blade

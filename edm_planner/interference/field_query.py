@@ -19,6 +19,7 @@ from .field_params import (
     ACCURATE_WITHIN, _ATAN, _CA, _FR0, _FR1, _FX0, _FX1, _HHR, _HHX, _HR, _HR0, _HT, _HX, _HX0, _IHHR,
     _IHHX, _IHR, _IHT, _IHX, _NHR, _NHX, _NR, _NT, _NX, _R0, _SA, _T0, _TC, _TWO_PI, _X0)
 from .exact_solvers import _exact_blade, _exact_surface, _profile_signed
+from .prefetch import prefetch
 
 
 @numba.njit(cache=True, inline="always")
@@ -233,6 +234,9 @@ def _posed(m, ex, ey, ez):
 #: points per block of the pose kernels' three stages (their scratch arrays stay in L1/L2)
 _BLOCK = 512
 
+#: how many points ahead ``_block_values`` prefetches the grid cells (24: measured best of 12, 24, 48)
+_AHEAD = 24
+
 
 @numba.njit(cache=True)
 def _block_scratch():
@@ -292,14 +296,33 @@ def _block_cells(m, pts, k0, n, fpt, ipt, xyz, cell, weight, ok):
         cell[1, i] = jx * hsr + jr * 2
 
 
+@numba.njit(cache=True, inline="always")
+def _prefetch_cell(flat, b0, sr, sx):
+    """Prefetch the four (x, r) corners of a blade-grid cell (theta and both walls share a line)."""
+    b = np.uint64(b0)
+    prefetch(flat, b)
+    prefetch(flat, b + sr)
+    prefetch(flat, b + sx)
+    prefetch(flat, b + sx + sr)
+
+
 @numba.njit(cache=True, error_model="numpy")
 def _block_values(n, flat, hs, ipt, cell, weight, values):
-    """Stage 2 of a block: the loads and the float32 interpolation of ``_fast_point``, bit for bit."""
+    """Stage 2 of a block: the loads and the float32 interpolation of ``_fast_point``, bit for bit.
+
+    The four cache lines of the cell of point i + ``_AHEAD`` are prefetched
+    while point i is interpolated (about 10 % more points per second near the
+    final pose, where the cells come from L2 or memory).
+    """
     sr = np.uint64(2 * ipt[_NT])
     sx = np.uint64(2 * ipt[_NT] * ipt[_NR])
     hsr = np.uint64(2 * ipt[_NHR])
     one, two, three = np.uint64(1), np.uint64(2), np.uint64(3)
+    for i in range(min(_AHEAD, n)):
+        _prefetch_cell(flat, cell[0, i], sr, sx)
     for i in range(n):
+        if i + _AHEAD < n:
+            _prefetch_cell(flat, cell[0, i + _AHEAD], sr, sx)
         wx, wr, wt = weight[0, i], weight[1, i], weight[2, i]
         b0 = np.uint64(cell[0, i])
         b1 = b0 + sr
