@@ -161,3 +161,37 @@ def test_electrode_in_collision_at_its_final_pose(system):
                settings=req.settings)
     assert res.error_code.val == ErrorCode.ELECTRODE_IN_COLLISION
     assert res.blocking_surface in ("suction", "pressure") and "margin" in res.message
+
+
+def test_a_geometry_loaded_again_after_another_is_the_latest_again(system):
+    """Load A (the default blisk, 60 blades), then B (Rotor 37, 36 blades), then A again: a request naming
+    no geometry is answered for A again (the channel check says which blisk answered)."""
+    from edm_planner_msgs.srv import LoadGeometry, PlanElectrodeSet
+
+    from edm_planner.nodes.geometry_loader import config_directory
+
+    ros, client, gid_a = system[:3]
+
+    def load(name):
+        res = ros.call(client, LoadGeometry, "load_geometry",
+                       LoadGeometry.Request(path=str(config_directory() / name)), timeout=300)
+        assert res.success, res.message
+        return res.geometry_id
+
+    def channels_of_the_latest():
+        res = ros.call(client, PlanElectrodeSet, "plan_electrode_set",
+                       PlanElectrodeSet.Request(geometry_id="", channel=70), timeout=300)
+        assert res.error_code.val == ErrorCode.INVALID_REQUEST, res.message
+        return res.message
+
+    def wait_for(text):
+        deadline = time.monotonic() + 120
+        while text not in (said := channels_of_the_latest()):
+            assert time.monotonic() < deadline, f"still answered as: {said}"
+            time.sleep(0.2)
+
+    assert "0 .. 59" in channels_of_the_latest()
+    assert load("rotor37.yaml") != gid_a
+    wait_for("0 .. 35")
+    assert load("default_blisk.yaml") == gid_a
+    wait_for("0 .. 59")
