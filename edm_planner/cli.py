@@ -17,11 +17,12 @@ still written (error code, message, where the search stopped) for diagnosis;
 import argparse
 import logging
 import os
+import pathlib
 import sys
 import time
 
 from .errors import EdmError, ErrorCode
-from .planning.store import open_store
+from .planning.store import PlanStoreError, open_store
 
 DEFAULT_CACHE = os.path.join(os.path.expanduser("~"), ".cache", "edm_planner")
 
@@ -279,7 +280,7 @@ def _plan(args, out, err):
     design = _design(args, geometry.design)
     store = open_store(args.store)
     if design is None and not args.electrode and not geometry.design_given and not args.size_electrode:
-        return _plan_set(args, geometry, options, store, progress, out)
+        return _plan_set(args, geometry, options, store, progress, out, err)
     key = request_key(geometry.geometry_id, args.channel, args.electrode, options, design)
     stored = None if (store is None or args.replan) else store.find(key)
     if stored is not None:
@@ -288,9 +289,16 @@ def _plan(args, out, err):
     else:
         plan = plan_channel(geometry, args.channel, args.electrode, options, progress=progress,
                             cache_dir=args.cache_dir, design=design)
-        if plan.success and store is not None:
-            store.put(plan_to_stored(plan), key)
     path = write_plan(plan, args.out, geometry.blisk)
+    not_kept = ""
+    if stored is None and plan.success and store is not None:
+        # after the export: a store that cannot take the plan (a full disk) costs no plan
+        try:
+            store.put(plan_to_stored(plan), key)
+        except PlanStoreError as exc:
+            not_kept = exc.message
+            print(f"warning: the plan is written to {path.parent} but not kept in the plan store: {exc.message}",
+                  file=err)
     progress("export", 1.0, plan.metrics.node_count, 0.0, str(path.parent))
     progress.close()
     if not plan.success:
@@ -307,12 +315,13 @@ def _plan(args, out, err):
           f"circumferential reduction {m.circumferential_reduction:.4f} rad\n"
           f"written to {path.parent}" + (f"\nfrom the plan store {store.path} (planned {stored.created}; "
                                          f"--replan plans anew)" if stored is not None else
-                                         f"\nkept in the plan store {store.path}" if store is not None else ""),
+                                         f"\nNOT kept in the plan store {store.path} (see the warning)" if not_kept
+                                         else f"\nkept in the plan store {store.path}" if store is not None else ""),
           file=out)
     return 0
 
 
-def _plan_set(args, geometry, options, store, progress, out):
+def _plan_set(args, geometry, options, store, progress, out, err):
     """No design named by the file or the command line: design the channel's electrode set."""
     from .interference.fast import FastChannelField
     from .machining.electrode_set import SetDesigner, SetOptions, write_set
@@ -326,7 +335,12 @@ def _plan_set(args, geometry, options, store, progress, out):
     designer = SetDesigner(geometry, field, options, SetOptions(time_budget=max(args.time_budget, 60.0) * 15),
                            progress=on_set, field_cache=(args.cache_dir, geometry.geometry_id))
     result = designer.design(args.channel)
-    path = write_set(result, args.out, geometry.blisk, store)
+    not_kept = ""
+    try:
+        path = write_set(result, args.out, geometry.blisk, store)
+    except PlanStoreError as exc:              # every file is written: only the store's copy is missing
+        path, not_kept = pathlib.Path(args.out) / "set.json", exc.message
+        print(f"warning: {exc.message}", file=err)
     progress.close()
     lines = [f"electrode set of channel {args.channel}: {result.message}",
              f"designed in {result.planning_time:.1f} s; candidates:"]
@@ -348,7 +362,8 @@ def _plan_set(args, geometry, options, store, progress, out):
                          f"{100 * s.area_fraction_above_tolerance:6.2f} % of the area above "
                          f"({100 * s.area_fraction_beyond_inherent:5.2f} % beyond the corner rounding, up to "
                          f"{s.inherent_max:.3f} mm)  overcut {s.overcut_max:.4f} mm")
-    lines.append(f"written to {path.parent} (set.json, stock.png, one export per electrode)")
+    lines.append(f"written to {path.parent} (set.json, stock.png, one export per electrode)"
+                 + ("; NOT kept in the plan store (see the warning)" if not_kept else ""))
     print("\n".join(lines), file=out)
     if result.chosen is None:
         raise EdmError(ErrorCode.INFEASIBLE, result.message)

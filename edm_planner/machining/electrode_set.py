@@ -594,7 +594,10 @@ def write_set(result, out_dir, blisk, store=None):
         ``<out>/stock.png`` (the chosen set's stock maps).
     blisk : Blisk
     store : PlanStore, optional
-        The chosen pieces' plans (with their cycles) are kept there.
+        The chosen pieces' plans (with their cycles) are kept there, after
+        every file is written: a store that cannot take them (a full disk)
+        loses no file; :class:`~..planning.store.PlanStoreError` is raised
+        at the end, naming the plans not kept.
 
     Returns
     -------
@@ -619,9 +622,6 @@ def write_set(result, out_dir, blisk, store=None):
         doc["electrodes"] = []
         for order, piece in enumerate(chosen.pieces):
             path = write_plan(piece.plan, out / piece.label, blisk)
-            if store is not None:
-                from ..planning.store import plan_to_stored
-                store.put(plan_to_stored(piece.plan))
             doc["electrodes"].append({"order": order, "label": piece.label, "plan_id": piece.plan.plan_id,
                                       "export": str(path.parent.relative_to(out))})
     # the chosen set's stock, or the closest candidate's: where the stock stays is what an engineer asks next
@@ -633,7 +633,20 @@ def write_set(result, out_dir, blisk, store=None):
         plot_stock_maps(shown.removal, out / "stock.png")
         write_stock_glb(shown.removal, blisk, result.channel, out / "stock.glb")
         doc["stock_map"] = {"file": "stock.png", "glb": "stock.glb", "candidate": shown.name}
-    return _write_set_json(out, doc)
+    path = _write_set_json(out, doc)
+    if store is not None and chosen is not None:
+        from ..planning.store import PlanStoreError, plan_to_stored
+
+        failed = []
+        for piece in chosen.pieces:
+            try:
+                store.put(plan_to_stored(piece.plan))
+            except PlanStoreError as exc:
+                failed.append(exc.message)
+        if failed:
+            raise PlanStoreError(f"the set is written to {out}, but {len(failed)} of its {len(chosen.pieces)} "
+                                 f"plans are not kept in the plan store: {failed[0]}")
+    return path
 
 
 def write_stored_set(plans, labels, meta, out_dir, blisk):

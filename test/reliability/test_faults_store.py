@@ -211,3 +211,40 @@ def test_a_full_disk_is_a_clear_error_and_leaves_the_store_and_the_cache_whole(t
 
 def record_id(i):
     return record(i).plan_id
+
+
+def test_the_cli_keeps_a_plan_the_full_store_cannot_take(tmp_path, field_cache):
+    """`edm-plan plan` with its store on a full disk: the plan is planned, exported and reported, the store's
+    failure is a one-line warning (exit 0), and the store is as it was."""
+    import pytest
+
+    from edm_planner.nodes.geometry_loader import config_directory
+
+    with small_disk(tmp_path / "disk") as kind:
+        if not kind:
+            pytest.skip("no tmpfs can be mounted here: a full disk for the store alone needs one")
+        store = tmp_path / "disk" / "store"
+        PlanStore(store)                                     # makes the file (nothing in it)
+        holder = sqlite3.connect(store / FILE_NAME)          # its index file exists: the store opens when full
+        assert holder.execute("SELECT count(*) FROM plans").fetchone() == (0,)
+        filler = fill(tmp_path / "disk")
+        out = tmp_path / "plan"
+        try:
+            proc = subprocess.run(
+                [sys.executable, "-m", "edm_planner.cli", "plan", "--geometry",
+                 str(config_directory() / "default_blisk.yaml"), "--channel", "0", "--out", str(out),
+                 "--electrode", "rear", "--split", "front_rear", "--circumferential-reduction", "0.03",
+                 "--radial-reduction", "3", "--split-overlap", "1", "--exit-side", "downstream",
+                 "--store", str(store), "--cache-dir", str(field_cache), "--progress", "none"],
+                capture_output=True, text=True, timeout=600)
+            assert proc.returncode == 0, proc.stdout + proc.stderr
+            warning = [ln for ln in proc.stderr.splitlines() if ln.startswith("warning:")]
+            assert len(warning) == 1 and f"the plan is written to {out}" in warning[0], proc.stderr
+            assert "not kept in the plan store: cannot store plan" in warning[0], warning[0]
+            assert "database or disk is full" in warning[0]
+            assert "NOT kept in the plan store" in proc.stdout and "kept in the plan store" in proc.stdout
+            assert (out / "plan.json").is_file()
+            assert holder.execute("SELECT count(*) FROM plans").fetchone() == (0,)
+        finally:
+            filler.unlink()
+            holder.close()
