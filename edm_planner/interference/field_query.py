@@ -3,10 +3,13 @@
 ``_fast_point`` is the fast path (trilinear in the float32 blade grid,
 bilinear in the hub/shroud table, lower bounds outside the grid);
 ``_slow_point`` answers the cells marked for the exact solver and points
-outside the hub/shroud table. ``_points_kernel`` and ``_pose_kernel`` loop
-them over points and over (pose, point) pairs; ``_exact_pose_kernel`` prunes
-by the field and solves exactly only the points that can attain a pose's
-minimum. Units: mm, rad.
+outside the hub/shroud table. ``_points_kernel`` loops them over points;
+``_pose_kernel`` and ``_posed_kernel`` over (pose, point) pairs, in blocks of
+points run in three stages (``_block_cells``: the cells in a loop LLVM
+vectorises; ``_block_values``: the loads, with the cells ahead prefetched;
+``_block_point``: the points off the common case in full), bit for bit the
+per-point values; ``_exact_pose_kernel`` prunes by the field and solves
+exactly only the points that can attain a pose's minimum. Units: mm, rad.
 """
 
 import math
