@@ -74,8 +74,26 @@ def _fast_point(x, y, z, flat, hs, fp, ip):
     # unsigned indices: no negative-index wrap-around code; float32 arithmetic on the (s, p) pairs
     sr = np.uint64(2 * ip[_NT])
     sx = np.uint64(2 * ip[_NT] * ip[_NR])
+    two = np.uint64(2)
+    s, p = _blade_cell(flat, np.uint64(ix) * sx + np.uint64(ir) * sr + np.uint64(it) * two, sr, sx, wx, wr, wt)
+    if s != s or p != p:
+        return nan, nan, nan, nan, False
+    sb, pb = float(s), float(p)
+    if gap > 0.0:
+        ex = max(fp[_FX0] - x, 0.0, x - fp[_FX1])
+        er = max(fp[_FR0] - rho, 0.0, rho - fp[_FR1])
+        rect = math.sqrt(ex * ex + er * er)
+        sb, pb = max(sb - gap, rect), max(pb - gap, rect)
+    jx, jr = int(hx), int(hr)
+    hsr = np.uint64(2 * ip[_NHR])
+    h, c = _wall_cell(hs, np.uint64(jx) * hsr + np.uint64(jr) * two, hsr, np.float32(hx - jx), np.float32(hr - jr))
+    return sb, pb, float(h), float(c), True
+
+
+@numba.njit(cache=True, inline="always")
+def _blade_cell(flat, b0, sr, sx, wx, wr, wt):
+    """(suction, pressure) trilinear in the blade grid cell at flat index ``b0``, float32 (shared weights)."""
     one, two, three = np.uint64(1), np.uint64(2), np.uint64(3)
-    b0 = np.uint64(ix) * sx + np.uint64(ir) * sr + np.uint64(it) * two
     b1 = b0 + sr
     b2 = b0 + sx
     b3 = b2 + sr
@@ -91,26 +109,19 @@ def _fast_point(x, y, z, flat, hs, fp, ip):
     s1 = s10 + wr * (s11 - s10)
     p0 = p00 + wr * (p01 - p00)
     p1 = p10 + wr * (p11 - p10)
-    s = s0 + wx * (s1 - s0)
-    p = p0 + wx * (p1 - p0)
-    if s != s or p != p:
-        return nan, nan, nan, nan, False
-    sb, pb = float(s), float(p)
-    if gap > 0.0:
-        ex = max(fp[_FX0] - x, 0.0, x - fp[_FX1])
-        er = max(fp[_FR0] - rho, 0.0, rho - fp[_FR1])
-        rect = math.sqrt(ex * ex + er * er)
-        sb, pb = max(sb - gap, rect), max(pb - gap, rect)
-    jx, jr = int(hx), int(hr)
-    ax, ar = np.float32(hx - jx), np.float32(hr - jr)
-    hsr = np.uint64(2 * ip[_NHR])
-    c0 = np.uint64(jx) * hsr + np.uint64(jr) * two
+    return s0 + wx * (s1 - s0), p0 + wx * (p1 - p0)
+
+
+@numba.njit(cache=True, inline="always")
+def _wall_cell(hs, c0, hsr, ax, ar):
+    """(hub, shroud) bilinear in the hub/shroud table cell at flat index ``c0``, float32."""
+    one, two, three = np.uint64(1), np.uint64(2), np.uint64(3)
     c1 = c0 + hsr
     h0 = hs[c0] + ar * (hs[c0 + two] - hs[c0])
     h1 = hs[c1] + ar * (hs[c1 + two] - hs[c1])
     k0 = hs[c0 + one] + ar * (hs[c0 + three] - hs[c0 + one])
     k1 = hs[c1 + one] + ar * (hs[c1 + three] - hs[c1 + one])
-    return sb, pb, float(h0 + ax * (h1 - h0)), float(k0 + ax * (k1 - k0)), True
+    return h0 + ax * (h1 - h0), k0 + ax * (k1 - k0)
 
 
 @numba.njit(cache=True)
@@ -320,40 +331,14 @@ def _block_values(n, flat, hs, ipt, cell, weight, values):
     sr = np.uint64(2 * ipt[_NT])
     sx = np.uint64(2 * ipt[_NT] * ipt[_NR])
     hsr = np.uint64(2 * ipt[_NHR])
-    one, two, three = np.uint64(1), np.uint64(2), np.uint64(3)
     for i in range(min(_AHEAD, n)):
         _prefetch_cell(flat, cell[0, i], sr, sx)
     for i in range(n):
         if i + _AHEAD < n:
             _prefetch_cell(flat, cell[0, i + _AHEAD], sr, sx)
-        wx, wr, wt = weight[0, i], weight[1, i], weight[2, i]
-        b0 = np.uint64(cell[0, i])
-        b1 = b0 + sr
-        b2 = b0 + sx
-        b3 = b2 + sr
-        s00 = flat[b0] + wt * (flat[b0 + two] - flat[b0])
-        p00 = flat[b0 + one] + wt * (flat[b0 + three] - flat[b0 + one])
-        s01 = flat[b1] + wt * (flat[b1 + two] - flat[b1])
-        p01 = flat[b1 + one] + wt * (flat[b1 + three] - flat[b1 + one])
-        s10 = flat[b2] + wt * (flat[b2 + two] - flat[b2])
-        p10 = flat[b2 + one] + wt * (flat[b2 + three] - flat[b2 + one])
-        s11 = flat[b3] + wt * (flat[b3 + two] - flat[b3])
-        p11 = flat[b3 + one] + wt * (flat[b3 + three] - flat[b3 + one])
-        s0 = s00 + wr * (s01 - s00)
-        s1 = s10 + wr * (s11 - s10)
-        p0 = p00 + wr * (p01 - p00)
-        p1 = p10 + wr * (p11 - p10)
-        values[0, i] = s0 + wx * (s1 - s0)
-        values[1, i] = p0 + wx * (p1 - p0)
-        ax, ar = weight[3, i], weight[4, i]
-        c0 = np.uint64(cell[1, i])
-        c1 = c0 + hsr
-        h0 = hs[c0] + ar * (hs[c0 + two] - hs[c0])
-        h1 = hs[c1] + ar * (hs[c1 + two] - hs[c1])
-        k0 = hs[c0 + one] + ar * (hs[c0 + three] - hs[c0 + one])
-        k1 = hs[c1 + one] + ar * (hs[c1 + three] - hs[c1 + one])
-        values[2, i] = h0 + ax * (h1 - h0)
-        values[3, i] = k0 + ax * (k1 - k0)
+        values[0, i], values[1, i] = _blade_cell(flat, np.uint64(cell[0, i]), sr, sx,
+                                                 weight[0, i], weight[1, i], weight[2, i])
+        values[2, i], values[3, i] = _wall_cell(hs, np.uint64(cell[1, i]), hsr, weight[3, i], weight[4, i])
 
 
 @numba.njit(cache=True, inline="always")
