@@ -55,6 +55,18 @@ def bench_geometry():
     return out
 
 
+def rear_design():
+    """The planning benchmark's electrode: the rear of a front/rear split (h = 0.03 rad, radial reduction 3 mm).
+
+    The default blisk's primitive electrode cannot leave its channel; the
+    planning, verification and speed suites all plan this one.
+    """
+    from ..geometry.electrode import ElectrodeDesign
+
+    return ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, split="front_rear",
+                           split_overlap=1.0)
+
+
 def _poses_near(final_pose, n, seed=0, spread=0.05):
     """n electrode poses near the final pose (small random rigid motions)."""
     from scipy.spatial.transform import Rotation
@@ -199,9 +211,8 @@ def bench_planning(runs=PLANNING_RUNS):
     radial reduction 3 mm), 5 axes, step 0.1 mm, exit downstream. The distance
     field is built (or loaded from the cache) before the clock starts.
     """
-    import os
-
-    from ..geometry.electrode import ElectrodeDesign, design_electrodes
+    from ..cli import DEFAULT_CACHE
+    from ..geometry.electrode import design_electrodes
     from ..geometry.loader import load_geometry
     from ..interference.fast import FastChannelField
     from ..planning.plan import PlanOptions
@@ -209,10 +220,8 @@ def bench_planning(runs=PLANNING_RUNS):
     from ..planning.search import SearchOptions
 
     g = load_geometry(CONFIG / "default_blisk.yaml")
-    cache = os.path.join(os.path.expanduser("~"), ".cache", "edm_planner")
-    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=cache, cache_key=g.geometry_id)
-    design = ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, split="front_rear",
-                             split_overlap=1.0)
+    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=DEFAULT_CACHE, cache_key=g.geometry_id)
+    design = rear_design()
     design_electrodes(g.blisk, design)                    # numba warm-up outside the clock
     out = {"electrode": "rear", "design": design.to_dict(), "axes": 5, "step_mm": 0.1, "exit_side": "downstream"}
     for label, method, extra in runs:

@@ -38,7 +38,7 @@ import numba
 import numpy as np
 
 from ..interference import SURFACES
-from . import CONFIG
+from . import CONFIG, rear_design
 from ..interference.exact_points import ExactChannelDistance
 from ..interference.fast import ACCURATE_WITHIN, FastChannelField
 
@@ -183,13 +183,11 @@ def bench_fast(blisk, electrode, spacing=0.1, n_poses=1000, seed=0):
 def _plan_rear(geometry, field, sample_spacing):
     """The rear electrode of a front/rear split (h = 0.03 rad, radial reduction 3 mm) in channel 0: 5 axes,
     step 0.1 mm, exit downstream (as the planning benchmark), samples ``sample_spacing`` mm apart."""
-    from ..geometry.electrode import ElectrodeDesign
     from ..planning.plan import PlanOptions
     from ..planning.planner import plan_channel
     from ..planning.search import SearchOptions
 
-    design = ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, split="front_rear",
-                             split_overlap=1.0)
+    design = rear_design()
     opts = PlanOptions(search=SearchOptions(step=0.1, exit_side="downstream"), sample_spacing=sample_spacing)
     t = time.perf_counter()
     plan = plan_channel(geometry, 0, "rear", opts, field=field, design=design, exact_clearance=False)

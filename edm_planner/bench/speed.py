@@ -37,7 +37,8 @@ import time
 
 import numpy as np
 
-from . import CONFIG, _poses_near
+from ..cli import DEFAULT_CACHE
+from . import CONFIG, _poses_near, rear_design
 
 _log = logging.getLogger(__name__)
 
@@ -79,13 +80,11 @@ def field_throughput(geometry, field):
 
 def plan_certify(geometry, field, repeat=5):
     """The planning benchmark's default case: planning time (search + fit + certification) and quality."""
-    from ..geometry.electrode import ElectrodeDesign
     from ..planning.plan import PlanOptions
     from ..planning.planner import plan_channel
     from ..planning.search import SearchOptions
 
-    design = ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, split="front_rear",
-                             split_overlap=1.0)
+    design = rear_design()
     opts = PlanOptions(search=SearchOptions(method="default", step=0.1, exit_side="downstream"))
 
     def once():
@@ -131,8 +130,8 @@ def demo_runs():
     """``make demo``'s program with an empty field cache and plan store, then repeated."""
     home = pathlib.Path(tempfile.mkdtemp(prefix="edm_bench_home_"))
     try:
-        env = dict(os.environ, HOME=str(home), NUMBA_CACHE_DIR=os.environ["NUMBA_CACHE_DIR"],
-                   ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+        # numba's cache stays where make setup filled it: edm_planner set NUMBA_CACHE_DIR from the old HOME
+        env = dict(os.environ, HOME=str(home), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
         env.pop("EDM_PLANNER_PLAN_STORE", None)
         env.setdefault("AMENT_PREFIX_PATH", sys.prefix)          # as the Makefile sets it: the nodes' share dir
         cmd = [sys.executable, "-m", "edm_planner.nodes.demo", "--out", str(home / "demo")]
@@ -152,8 +151,7 @@ def bench_speed():
     from ..nodes.bench_service import load_geometry_round_trip, service_round_trip
 
     g = load_geometry(CONFIG / "default_blisk.yaml")
-    cache = os.path.join(os.path.expanduser("~"), ".cache", "edm_planner")
-    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=cache, cache_key=g.geometry_id)
+    field = FastChannelField(g.blisk, spacing=0.1, cache_dir=DEFAULT_CACHE, cache_key=g.geometry_id)
     out = {"field": field_throughput(g, field)}
     _log.warning("speed: field %s", out["field"])
     out["check_interference_1000_poses_ms"] = service_round_trip(1000, _poses_near)
