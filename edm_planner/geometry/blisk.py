@@ -20,6 +20,7 @@ from ..constants import SIZE, TOL
 from ..errors import GeometryError
 from .blade_mesh import closed_blade_mesh, face_grid_mesh
 from .frames import cylindrical_to_cartesian, rotation_about_x
+from .parametric import SPAN_EXTENSION
 from .profiles import RevolutionProfile
 from .sections import BladeSections
 from .surfaces import BladeFace
@@ -45,16 +46,15 @@ def wall_overlap(hub, shroud):
     """How far blade sections reach into the hub and the shroud [mm].
 
     ``WALL_OVERLAP_FRACTION`` of the smallest channel height: :class:`Blisk`
-    extends its blade this far into both walls, and
-    :func:`~.blade_mesh.mesh_to_sections` slices a blade mesh up to this far
-    beyond them (one rule, so the two cannot drift apart).
+    extends its blade at least this far into both walls (a blade mesh is
+    sliced farther, :func:`mesh_slice_overlap`).
     """
     return WALL_OVERLAP_FRACTION * channel_height_range(hub, shroud)[0]
 
 
 #: how far a blade mesh is sliced beyond hub and shroud (:func:`mesh_slice_overlap`), as a fraction of
 #: the smallest channel height: the parametric blade's default ``span_extension``
-MESH_SLICE_FRACTION = 0.03
+MESH_SLICE_FRACTION = SPAN_EXTENSION
 
 
 def mesh_slice_overlap(hub, shroud):

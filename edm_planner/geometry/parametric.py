@@ -696,6 +696,9 @@ def stack_sections(definitions, hub, shroud, station_count=101, where="blade.par
 _SECTION_REQUIRED = ("span", "x_le", "x_te", "le_radius", "te_radius", "inlet_angle", "outlet_angle",
                      "le_wedge", "te_wedge")
 _SECTION_OPTIONAL = ("minus_curvature", "plus_curvature", "stagger", "lean", "stack_x")
+#: default ``span_extension``: the blade continued this fraction of the channel height past hub and shroud
+SPAN_EXTENSION = 0.03
+
 _TOP_KEYS = ("interpolation", "span_extension", "span_count", "station_count", "sections")
 
 
@@ -801,7 +804,7 @@ def parse_parametric(spec, hub: RevolutionProfile, shroud: RevolutionProfile,
     method = spec.get("interpolation", "cubic")
     if method not in ("linear", "cubic"):
         raise GeometryError(f"{where}.interpolation: must be 'linear' or 'cubic', got {method!r}")
-    ext = _number(spec.get("span_extension", 0.03), f"{where}.span_extension")
+    ext = _number(spec.get("span_extension", SPAN_EXTENSION), f"{where}.span_extension")
     if not 0.0 <= ext <= 0.5:
         raise GeometryError(f"{where}.span_extension: must lie in [0, 0.5], got {ext:g}")
     span_count = _integer(spec.get("span_count", 21), f"{where}.span_count", 2)
