@@ -1,10 +1,11 @@
 """Compile every numba kernel once, into numba's on-disk cache, before parallel work starts.
 
 numba compiles a kernel on its first call in a process and caches it on disk
-(``cache=True``, ``NUMBA_CACHE_DIR``, see ``edm_planner/__init__.py``). The
-cache is keyed by the source file, so a fresh clone starts empty; processes
-started together (the nodes of ``make demo``, the set designer's workers,
-the test workers) would then each compile the same kernels at once. This
+(``cache=True``, ``NUMBA_CACHE_DIR``: one directory per version of the
+kernel sources, see ``edm_planner/__init__.py``). A fresh clone or a changed
+kernel starts empty; processes started together (the nodes of ``make demo``,
+the set designer's workers, the test workers) would then each compile the
+same kernels at once. This
 module makes one process compile them all first, through the public API and
 the same argument types as real work: the default blisk's electrode design
 (spline kernels), a coarse distance field (fill and query kernels), the exact
@@ -99,7 +100,40 @@ def main(argv=None):
         _log.error("warm-up failed (exit codes %s)", codes)
         return 1
     _log.info("warm-up: done in %.1f s", time.perf_counter() - t0)
+    for old in prune_kernel_caches():
+        _log.info("warm-up: removed %s (kernels of other sources, unused for %d days)", old, KEEP_DAYS)
     return 0
+
+
+#: how long the kernels compiled from other versions of the sources are kept (another clone may use them)
+KEEP_DAYS = 30
+
+
+def prune_kernel_caches(now=None):
+    """Remove the numba cache directories of other kernel sources nothing wrote to for ``KEEP_DAYS``.
+
+    Each version of the kernel sources gets its own directory under
+    ``edm_planner.NUMBA_CACHE_ROOT`` (about 90 MB); only the default root is
+    pruned, never a NUMBA_CACHE_DIR the caller chose. Returns what was removed.
+    """
+    import os
+    import shutil
+
+    from . import NUMBA_CACHE_ROOT
+
+    root, current = pathlib.Path(NUMBA_CACHE_ROOT), pathlib.Path(os.environ["NUMBA_CACHE_DIR"])
+    if current.parent != root or not root.is_dir():
+        return []
+    limit = (time.time() if now is None else now) - KEEP_DAYS * 86400
+    removed = []
+    for entry in root.iterdir():
+        if entry == current or not entry.is_dir():
+            continue
+        newest = max((p.stat().st_mtime for p in entry.rglob("*")), default=entry.stat().st_mtime)
+        if newest < limit:
+            shutil.rmtree(entry, ignore_errors=True)
+            removed.append(entry)
+    return removed
 
 
 if __name__ == "__main__":

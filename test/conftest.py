@@ -16,9 +16,10 @@ WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
 if WORKER:
     os.environ["ROS_DOMAIN_ID"] = str((int(os.environ["ROS_DOMAIN_ID"]) - 1 + 50 * int(WORKER[2:])) % 100 + 1)
 os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
-# Compiled numba kernels in the user's cache (as edm_planner does by default), named here so that
-# processes started with another HOME (the demo's fresh user) still find them.
-os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "edm_planner", "numba"))
+# Compiled numba kernels in the user's cache: edm_planner names the directory in NUMBA_CACHE_DIR (one per
+# version of the kernel sources), so that processes started with another HOME (the demo's fresh user)
+# still find them.
+import edm_planner  # noqa: E402,F401
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 REPO = pathlib.Path(__file__).resolve().parent.parent

@@ -373,6 +373,79 @@ def test_prefetch_is_a_prefetch_instruction_and_changes_nothing():
         numba.njit(lambda a: prefetch(a, 1.5))(a)                    # a float index is refused
 
 
+def _lerp32(lo, hi, w):
+    """The scalar float32 lerp the field's cells are interpolated with: lo + w * (hi - lo), rounded per step."""
+    return np.float32(lo + np.float32(w * np.float32(hi - lo)))
+
+
+def test_simd_cell_values_are_the_scalar_float32_lerps_bit_for_bit(field):
+    """``cell_values`` (4-wide SIMD written in LLVM IR) gives bit for bit the scalar float32 interpolation:
+    theta, then r, then x in the blade grid (both walls); r, then x in the hub/shroud table; NaN cells
+    (marked for the exact solver) stay NaN. It compiles to packed instructions and refuses wrong types."""
+    import platform
+
+    import numba
+
+    from edm_planner.interference.cell_simd import cell_values
+
+    @numba.njit
+    def simd(flat, hs, b0, c0, w, sr, sx, hsr):
+        out = np.empty((len(b0), 4), dtype=np.float32)
+        for k in range(len(b0)):
+            out[k, 0], out[k, 1], out[k, 2], out[k, 3] = cell_values(
+                flat, np.uint64(b0[k]), sr, sx, w[k, 0], w[k, 1], w[k, 2], hs, np.uint64(c0[k]), hsr, w[k, 3], w[k, 4])
+        return out
+
+    flat, hs, _, ipt, _, _, _ = field._kernel_args(0)
+    nx, nr, nt, nhx, nhr = (ipt[i] for i in (field_query._NX, field_query._NR, field_query._NT, field_query._NHX,
+                                              field_query._NHR))
+    rng = np.random.default_rng(83)
+    n = 3000
+    ix, ir, it = rng.integers(0, nx - 1, n), rng.integers(0, nr - 1, n), rng.integers(0, nt - 1, n)
+    jx, jr = rng.integers(0, nhx - 1, n), rng.integers(0, nhr - 1, n)
+    sr, sx, hsr = 2 * nt, 2 * nt * nr, 2 * nhr
+    b0, c0 = ix * sx + ir * sr + 2 * it, jx * hsr + 2 * jr
+    w = rng.random((n, 5)).astype(np.float32)
+    w[:5] = [[0, 0, 0, 0, 0], [1, 1, 1, 1, 1], [0.5] * 5, [1e-7] * 5, [0.9999999] * 5]
+    got = simd(flat, hs, b0, c0, w, np.uint64(sr), np.uint64(sx), np.uint64(hsr))
+    for k in range(n):
+        wx, wr, wt, ax, ar = w[k]
+        blade = [[[_lerp32(flat[b0[k] + dx * sx + dr * sr + face], flat[b0[k] + dx * sx + dr * sr + 2 + face], wt)
+                   for dr in (0, 1)] for dx in (0, 1)] for face in (0, 1)]
+        s, p = (_lerp32(_lerp32(v[0][0], v[0][1], wr), _lerp32(v[1][0], v[1][1], wr), wx) for v in blade)
+        h, c = (_lerp32(_lerp32(hs[c0[k] + wall], hs[c0[k] + 2 + wall], ar),
+                        _lerp32(hs[c0[k] + hsr + wall], hs[c0[k] + hsr + 2 + wall], ar), ax) for wall in (0, 1))
+        np.testing.assert_array_equal(got[k], np.array([s, p, h, c], dtype=np.float32))
+    assert np.isnan(flat).any() and np.isnan(got[:, :2]).any()           # exact-solver cells among them
+    if platform.machine() in ("x86_64", "AMD64"):
+        asm = simd.inspect_asm(simd.signatures[0])
+        assert "subps" in asm and "mulps" in asm and "addps" in asm
+    with pytest.raises(numba.TypingError):                                 # a float64 grid is refused
+        simd(flat.astype(np.float64), hs, b0, c0, w, np.uint64(sr), np.uint64(sx), np.uint64(hsr))
+
+
+def test_pose_minimum_offered_out_of_order_keeps_the_first_index_of_a_tie():
+    """The pose kernel offers the points off the common case after the others: ``_lower`` gives the same
+    (minimum, index) as offering them in index order with a strict <, also for ties, NaN and infinity."""
+    import numba
+
+    @numba.njit
+    def offered(values, order):
+        best, arg = np.inf, 0
+        for k in order:
+            best, arg = field_query._lower(values[k], k, best, arg)
+        return best, arg
+
+    rng = np.random.default_rng(84)
+    for trial in range(300):
+        values = rng.choice([0.5, 0.25, 1.0, np.nan, np.inf], size=rng.integers(1, 12))
+        in_order = (np.inf, 0)
+        for k, v in enumerate(values):
+            if v < in_order[0]:
+                in_order = (v, k)
+        assert offered(values, rng.permutation(len(values))) == in_order
+
+
 def test_blocked_pose_kernels_equal_the_per_point_paths_on_every_kind_of_point(default, field):
     """The pose kernels' vectorised stages (cells, loads, minima) give bit for bit the per-point kernel's
     values on every path a point can take: the common case, a cell marked for the exact solver (blade

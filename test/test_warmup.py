@@ -19,3 +19,48 @@ def test_a_bad_part_is_refused_with_a_usage_line():
     run = subprocess.run([sys.executable, "-m", "edm_planner.warmup", "--part", "7"], cwd=REPO,
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 2 and "invalid choice" in run.stderr and "Traceback" not in run.stderr
+
+
+def test_the_kernel_cache_directory_follows_every_kernel_source(tmp_path):
+    """numba checks a cached kernel against its own file only; the cache directory is named by all kernel
+    sources, so an edit of an intrinsic another file's kernels inline (cell_simd.py) gives a new one, and
+    an edit of a module without numba does not."""
+    import os
+    import shutil
+
+    import edm_planner
+    from edm_planner import kernel_sources_digest
+
+    package = tmp_path / "edm_planner"
+    shutil.copytree(REPO / "edm_planner", package, ignore=shutil.ignore_patterns("__pycache__"))
+    first = kernel_sources_digest(str(package))
+    assert first == kernel_sources_digest(str(REPO / "edm_planner"))
+    assert os.environ["NUMBA_CACHE_DIR"] == os.path.join(edm_planner.NUMBA_CACHE_ROOT, first)
+    (package / "paths.py").write_text((package / "paths.py").read_text() + "\n# no kernel here\n")
+    assert kernel_sources_digest(str(package)) == first
+    simd = package / "interference" / "cell_simd.py"
+    simd.write_text(simd.read_text() + "\n# an edit of the intrinsic\n")
+    assert kernel_sources_digest(str(package)) != first
+
+
+def test_old_kernel_caches_are_pruned_but_not_the_current_one_or_a_recent_one(tmp_path, monkeypatch):
+    import os
+    import time
+
+    import edm_planner
+    from edm_planner.warmup import KEEP_DAYS, prune_kernel_caches
+
+    monkeypatch.setattr(edm_planner, "NUMBA_CACHE_ROOT", str(tmp_path))
+    now = time.time()
+    for name, age_days in (("current", 400), ("recent", KEEP_DAYS - 1), ("old", KEEP_DAYS + 1)):
+        (tmp_path / name / "sub").mkdir(parents=True)
+        kernel = tmp_path / name / "sub" / "kernel.nbc"
+        kernel.write_bytes(b"x")
+        for path in (kernel, kernel.parent, kernel.parent.parent):
+            os.utime(path, (now - age_days * 86400,) * 2)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "current"))
+    assert prune_kernel_caches(now) == [tmp_path / "old"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["current", "recent"]
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path.parent / "elsewhere"))   # a directory the caller chose
+    os.utime(tmp_path / "recent" / "sub" / "kernel.nbc", (0, 0))
+    assert prune_kernel_caches(now) == []

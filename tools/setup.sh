@@ -66,8 +66,9 @@ fi
 
 # numba's on-disk cache is keyed by the kernels' source files: compile them once here, in two processes,
 # instead of in every node, worker and test process that first needs them (at once, on a new clone)
-NUMBA_DIR=${NUMBA_CACHE_DIR:-$HOME/.cache/edm_planner/numba}
-h=$( (echo "$ROOT"; cat requirements.txt $(grep -rl "numba.njit" edm_planner --include=*.py | sort)) | sha256sum | cut -c1-16)
+# (one directory per version of the kernel sources: edm_planner names it in NUMBA_CACHE_DIR)
+NUMBA_DIR=$("$VENV/bin/python" -c 'import os, edm_planner; print(os.environ["NUMBA_CACHE_DIR"])')
+h=$( (echo "$ROOT"; cat requirements.txt; echo "$NUMBA_DIR") | sha256sum | cut -c1-16)
 if ! fresh numba "$h" || [ ! -d "$NUMBA_DIR" ]; then
   echo "setup: compiling the numba kernels into $NUMBA_DIR (about 2 minutes on a new clone)"
   mkdir -p build

@@ -6,9 +6,10 @@ bilinear in the hub/shroud table, lower bounds outside the grid);
 outside the hub/shroud table. ``_points_kernel`` loops them over points;
 ``_pose_kernel`` and ``_posed_kernel`` over (pose, point) pairs, in blocks of
 points run in three stages (``_block_cells``: the cells in a loop LLVM
-vectorises; ``_block_values``: the loads, with the cells ahead prefetched;
-``_block_point``: the points off the common case in full), bit for bit the
-per-point values; ``_exact_pose_kernel`` prunes by the field and solves
+vectorises; ``_block_values``: the loads and interpolation in 4-wide SIMD
+(``cell_simd``), with the cells ahead prefetched; then the values, with the
+points off the common case answered in full by ``_off_point``), bit for bit
+the per-point values; ``_exact_pose_kernel`` prunes by the field and solves
 exactly only the points that can attain a pose's minimum. Units: mm, rad.
 """
 
@@ -22,6 +23,7 @@ from .field_params import (
     ACCURATE_WITHIN, _ATAN, _CA, _FR0, _FR1, _FX0, _FX1, _HHR, _HHX, _HR, _HR0, _HT, _HX, _HX0, _IHHR,
     _IHHX, _IHR, _IHT, _IHX, _NHR, _NHX, _NR, _NT, _NX, _R0, _SA, _T0, _TC, _TWO_PI, _X0)
 from .exact_solvers import _exact_blade, _exact_surface, _profile_signed
+from .cell_simd import cell_values
 from .prefetch import prefetch
 
 
@@ -70,12 +72,14 @@ def _fast_point(x, y, z, flat, hs, fp, ip):
         gap = math.sqrt(dx * dx + (rho - rq) * (rho - rq) + 4.0 * rho * rq * sh * sh)
         gx, gr, gt = qx, qr, qt
     ix, ir, it = min(int(gx), ip[_NX] - 2), min(int(gr), ip[_NR] - 2), min(int(gt), ip[_NT] - 2)
-    wx, wr, wt = np.float32(gx - ix), np.float32(gr - ir), np.float32(gt - it)
-    # unsigned indices: no negative-index wrap-around code; float32 arithmetic on the (s, p) pairs
-    sr = np.uint64(2 * ip[_NT])
-    sx = np.uint64(2 * ip[_NT] * ip[_NR])
+    jx, jr = int(hx), int(hr)
+    # unsigned indices: no negative-index wrap-around code
+    sr, sx, hsr = np.uint64(2 * ip[_NT]), np.uint64(2 * ip[_NT] * ip[_NR]), np.uint64(2 * ip[_NHR])
     two = np.uint64(2)
-    s, p = _blade_cell(flat, np.uint64(ix) * sx + np.uint64(ir) * sr + np.uint64(it) * two, sr, sx, wx, wr, wt)
+    s, p, h, c = cell_values(flat, np.uint64(ix) * sx + np.uint64(ir) * sr + np.uint64(it) * two, sr, sx,
+                             np.float32(gx - ix), np.float32(gr - ir), np.float32(gt - it),
+                             hs, np.uint64(jx) * hsr + np.uint64(jr) * two, hsr, np.float32(hx - jx),
+                             np.float32(hr - jr))
     if s != s or p != p:
         return nan, nan, nan, nan, False
     sb, pb = float(s), float(p)
@@ -84,44 +88,7 @@ def _fast_point(x, y, z, flat, hs, fp, ip):
         er = max(fp[_FR0] - rho, 0.0, rho - fp[_FR1])
         rect = math.sqrt(ex * ex + er * er)
         sb, pb = max(sb - gap, rect), max(pb - gap, rect)
-    jx, jr = int(hx), int(hr)
-    hsr = np.uint64(2 * ip[_NHR])
-    h, c = _wall_cell(hs, np.uint64(jx) * hsr + np.uint64(jr) * two, hsr, np.float32(hx - jx), np.float32(hr - jr))
     return sb, pb, float(h), float(c), True
-
-
-@numba.njit(cache=True, inline="always")
-def _blade_cell(flat, b0, sr, sx, wx, wr, wt):
-    """(suction, pressure) trilinear in the blade grid cell at flat index ``b0``, float32 (shared weights)."""
-    one, two, three = np.uint64(1), np.uint64(2), np.uint64(3)
-    b1 = b0 + sr
-    b2 = b0 + sx
-    b3 = b2 + sr
-    s00 = flat[b0] + wt * (flat[b0 + two] - flat[b0])
-    p00 = flat[b0 + one] + wt * (flat[b0 + three] - flat[b0 + one])
-    s01 = flat[b1] + wt * (flat[b1 + two] - flat[b1])
-    p01 = flat[b1 + one] + wt * (flat[b1 + three] - flat[b1 + one])
-    s10 = flat[b2] + wt * (flat[b2 + two] - flat[b2])
-    p10 = flat[b2 + one] + wt * (flat[b2 + three] - flat[b2 + one])
-    s11 = flat[b3] + wt * (flat[b3 + two] - flat[b3])
-    p11 = flat[b3 + one] + wt * (flat[b3 + three] - flat[b3 + one])
-    s0 = s00 + wr * (s01 - s00)
-    s1 = s10 + wr * (s11 - s10)
-    p0 = p00 + wr * (p01 - p00)
-    p1 = p10 + wr * (p11 - p10)
-    return s0 + wx * (s1 - s0), p0 + wx * (p1 - p0)
-
-
-@numba.njit(cache=True, inline="always")
-def _wall_cell(hs, c0, hsr, ax, ar):
-    """(hub, shroud) bilinear in the hub/shroud table cell at flat index ``c0``, float32."""
-    one, two, three = np.uint64(1), np.uint64(2), np.uint64(3)
-    c1 = c0 + hsr
-    h0 = hs[c0] + ar * (hs[c0 + two] - hs[c0])
-    h1 = hs[c1] + ar * (hs[c1 + two] - hs[c1])
-    k0 = hs[c0 + one] + ar * (hs[c0 + three] - hs[c0 + one])
-    k1 = hs[c1 + one] + ar * (hs[c1 + three] - hs[c1 + one])
-    return h0 + ax * (h1 - h0), k0 + ax * (k1 - k0)
 
 
 @numba.njit(cache=True)
@@ -259,8 +226,9 @@ def _block_scratch():
     cell = np.empty((2, _BLOCK), dtype=np.int64)
     weight = np.empty((5, _BLOCK), dtype=np.float32)
     ok = np.empty(_BLOCK, dtype=np.bool_)
-    values = np.empty((4, _BLOCK), dtype=np.float32)
-    return xyz, cell, weight, ok, values
+    values = np.empty((_BLOCK, 4), dtype=np.float32)
+    off = np.empty(_BLOCK, dtype=np.int64)
+    return xyz, cell, weight, ok, values, off
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -269,11 +237,14 @@ def _block_cells(m, pts, k0, n, fpt, ipt, xyz, cell, weight, ok):
 
     The arithmetic of ``_fast_point`` up to its loads, with no branch, so
     that LLVM vectorises the loop (``error_model="numpy"``: a division by
-    zero gives inf instead of raising, which would need a branch). ``ok``
-    is False where ``_fast_point`` would leave its common case (outside the
-    blade grid or the hub/shroud table, or beyond the angle range); those
-    points get cell 0 (a safe load) and are answered again by ``_fast_point``
-    and ``_slow_point`` in stage 3. ``pts`` is (3, M): coordinates in rows.
+    zero gives inf instead of raising, which would need a branch; the
+    points are read through slices of the block, since ``pts[0, k0 + i]``
+    could be a negative index for all LLVM knows, and its wrap-around made
+    the loads gathers). ``ok`` is False where ``_fast_point`` would leave its
+    common case (outside the blade grid or the hub/shroud table, or beyond
+    the angle range); those points get cell 0 (a safe load) and are
+    answered again by ``_fast_point`` and ``_slow_point`` in stage 3.
+    ``pts`` is (3, M): coordinates in rows.
     """
     c = _ATAN
     lx, lr, lt = ipt[_NX] - 1.0, ipt[_NR] - 1.0, ipt[_NT] - 1.0
@@ -281,8 +252,9 @@ def _block_cells(m, pts, k0, n, fpt, ipt, xyz, cell, weight, ok):
     mx, mr, mt = ipt[_NX] - 2, ipt[_NR] - 2, ipt[_NT] - 2
     sr, sx, hsr = 2 * ipt[_NT], 2 * ipt[_NT] * ipt[_NR], 2 * ipt[_NHR]
     ca, sa = fpt[_CA], fpt[_SA]
+    px, py, pz = pts[0, k0:k0 + n], pts[1, k0:k0 + n], pts[2, k0:k0 + n]
     for i in range(n):
-        x, y, z = _posed(m, pts[0, k0 + i], pts[1, k0 + i], pts[2, k0 + i])
+        x, y, z = _posed(m, px[i], py[i], pz[i])
         xyz[0, i], xyz[1, i], xyz[2, i] = x, y, z
         rho = math.sqrt(y * y + z * z)
         yr = y * ca + z * sa
@@ -324,8 +296,9 @@ def _prefetch_cell(flat, b0, sr, sx):
 def _block_values(n, flat, hs, ipt, cell, weight, values):
     """Stage 2 of a block: the loads and the float32 interpolation of ``_fast_point``, bit for bit.
 
+    One ``cell_values`` (4-wide SIMD) per point into its row of ``values``.
     The four cache lines of the cell of point i + ``_AHEAD`` are prefetched
-    while point i is interpolated (about 10 % more points per second near the
+    while point i is interpolated (about 7 % more points per second near the
     final pose, where the cells come from L2 or memory).
     """
     sr = np.uint64(2 * ipt[_NT])
@@ -336,22 +309,36 @@ def _block_values(n, flat, hs, ipt, cell, weight, values):
     for i in range(n):
         if i + _AHEAD < n:
             _prefetch_cell(flat, cell[0, i + _AHEAD], sr, sx)
-        values[0, i], values[1, i] = _blade_cell(flat, np.uint64(cell[0, i]), sr, sx,
-                                                 weight[0, i], weight[1, i], weight[2, i])
-        values[2, i], values[3, i] = _wall_cell(hs, np.uint64(cell[1, i]), hsr, weight[3, i], weight[4, i])
+        values[i, 0], values[i, 1], values[i, 2], values[i, 3] = cell_values(
+            flat, np.uint64(cell[0, i]), sr, sx, weight[0, i], weight[1, i], weight[2, i],
+            hs, np.uint64(cell[1, i]), hsr, weight[3, i], weight[4, i])
 
 
 @numba.njit(cache=True, inline="always")
-def _block_point(i, xyz, ok, values, channel_angle, flat, hs, fpt, ipt, fp, ip, slow, work):
-    """Stage 3 of a block, point i: its four clearances, from stage 2 or, off the common case, in full."""
-    s, p, h, c = float(values[0, i]), float(values[1, i]), float(values[2, i]), float(values[3, i])
-    if ok[i] and s == s and p == p:
-        return s, p, h, c
+def _common(i, ok, values):
+    """Whether stage 2 answered point i: the common case, and a cell not marked for the exact solver."""
+    return ok[i] and values[i, 0] == values[i, 0] and values[i, 1] == values[i, 1]
+
+
+@numba.njit(cache=True, inline="always")
+def _off_point(i, xyz, channel_angle, flat, hs, fpt, ipt, fp, ip, slow, work):
+    """Stage 3 for a point off the common case: its four clearances in full (``_fast_point``, ``_slow_point``)."""
     x, y, z = xyz[0, i], xyz[1, i], xyz[2, i]
     s, p, h, c, good = _fast_point(x, y, z, flat, hs, fpt, ipt)
     if not good:
         s, p, h, c = _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work)
     return s, p, h, c
+
+
+@numba.njit(cache=True, inline="always")
+def _lower(v, k, best, arg):
+    """(best, arg) after offering value v of point k, out of order: ties go to the lower index, NaN never wins.
+
+    The same (best, arg) as offering the points in index order with a strict ``<``.
+    """
+    if v < best or (v == best and k < arg):
+        return v, k
+    return best, arg
 
 
 @numba.njit(cache=True, parallel=True)
@@ -370,12 +357,16 @@ def _posed_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow
         q, k0 = b // per_pose, (b % per_pose) * _BLOCK
         n = min(_BLOCK, n_pt - k0)
         work = new_work()
-        xyz, cell, weight, ok, values = _block_scratch()
+        xyz, cell, weight, ok, values, _ = _block_scratch()
         _block_cells(_rows(poses, q), pts, k0, n, fpt, ipt, xyz, cell, weight, ok)
         _block_values(n, flat, hs, ipt, cell, weight, values)
+        rows = out[q, k0:k0 + n]
         for i in range(n):
-            s, p, h, c = _block_point(i, xyz, ok, values, channel_angle, flat, hs, fpt, ipt, fp, ip, slow, work)
-            out[q, k0 + i, 0], out[q, k0 + i, 1], out[q, k0 + i, 2], out[q, k0 + i, 3] = s, p, h, c
+            if _common(i, ok, values):
+                rows[i, 0], rows[i, 1], rows[i, 2], rows[i, 3] = values[i, 0], values[i, 1], values[i, 2], values[i, 3]
+            else:
+                rows[i, 0], rows[i, 1], rows[i, 2], rows[i, 3] = _off_point(i, xyz, channel_angle, flat, hs, fpt, ipt,
+                                                                            fp, ip, slow, work)
     return out
 
 
@@ -386,13 +377,14 @@ def _pose_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow)
     Blocks of 64 poses x ``_BLOCK`` points: a point under neighbouring poses
     reads the same cells while they are in cache. Each (pose, block of
     points) runs in three stages: the cells of every point in a branch-free
-    loop LLVM vectorises (``_block_cells``: transform, arctangent, indices,
-    about a fifth of the time of the scalar loop it replaced), the loads and
-    interpolation (``_block_values``), then the minima with the points off
-    the common case answered in full (``_block_point``). Results are bit for
-    bit those of ``_fast_point``/``_slow_point`` per point. Pose blocks run in
-    parallel (each writes its own rows). ``fpt``, ``ipt`` are the parameter
-    vectors as tuples (passed by value: no reloads after stores).
+    loop LLVM vectorises (``_block_cells``: transform, arctangent, indices),
+    the loads and interpolation in SIMD (``_block_values``), then the
+    minima: the points stage 2 answered in a tight loop, then those off the
+    common case in full (``_off_point``; ``_lower`` keeps the first index of
+    a tie, as one pass in order would). Results are bit for bit those of
+    ``_fast_point``/``_slow_point`` per point. Pose blocks run in parallel
+    (each writes its own rows). ``fpt``, ``ipt`` are the parameter vectors
+    as tuples (passed by value: no reloads after stores).
     """
     n_pose, n_pt = poses.shape[0], points.shape[0]
     pts = np.ascontiguousarray(points.T)
@@ -404,7 +396,7 @@ def _pose_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow)
         q0 = b * block
         q1 = min(q0 + block, n_pose)
         work = new_work()
-        xyz, cell, weight, ok, values = _block_scratch()
+        xyz, cell, weight, ok, values, off = _block_scratch()
         for k0 in range(0, n_pt, _BLOCK):
             n = min(_BLOCK, n_pt - k0)
             for q in range(q0, q1):
@@ -412,18 +404,28 @@ def _pose_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow)
                 _block_values(n, flat, hs, ipt, cell, weight, values)
                 b0, b1, b2, b3 = best[q, 0], best[q, 1], best[q, 2], best[q, 3]
                 a0, a1, a2, a3 = arg[q, 0], arg[q, 1], arg[q, 2], arg[q, 3]
+                n_off = 0
                 for i in range(n):
-                    s, p, h, c = _block_point(i, xyz, ok, values, channel_angle, flat, hs, fpt, ipt, fp, ip, slow,
-                                              work)
-                    k = k0 + i
+                    if not _common(i, ok, values):
+                        off[n_off] = i
+                        n_off += 1
+                        continue
+                    s, p, h, c = values[i, 0], values[i, 1], values[i, 2], values[i, 3]
                     if s < b0:
-                        b0, a0 = s, k
+                        b0, a0 = s, k0 + i
                     if p < b1:
-                        b1, a1 = p, k
+                        b1, a1 = p, k0 + i
                     if h < b2:
-                        b2, a2 = h, k
+                        b2, a2 = h, k0 + i
                     if c < b3:
-                        b3, a3 = c, k
+                        b3, a3 = c, k0 + i
+                for j in range(n_off):
+                    k = k0 + off[j]
+                    s, p, h, c = _off_point(off[j], xyz, channel_angle, flat, hs, fpt, ipt, fp, ip, slow, work)
+                    b0, a0 = _lower(s, k, b0, a0)
+                    b1, a1 = _lower(p, k, b1, a1)
+                    b2, a2 = _lower(h, k, b2, a2)
+                    b3, a3 = _lower(c, k, b3, a3)
                 best[q, 0], best[q, 1], best[q, 2], best[q, 3] = b0, b1, b2, b3
                 arg[q, 0], arg[q, 1], arg[q, 2], arg[q, 3] = a0, a1, a2, a3
     return best, arg
