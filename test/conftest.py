@@ -1,5 +1,6 @@
 """Test configuration: loopback DDS and a ROS domain of this run's own."""
 
+import importlib
 import os
 import pathlib
 import sys
@@ -19,7 +20,7 @@ os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
 # Compiled numba kernels in the user's cache: edm_planner names the directory in NUMBA_CACHE_DIR (one per
 # version of the kernel sources), so that processes started with another HOME (the demo's fresh user)
 # still find them.
-import edm_planner  # noqa: E402,F401
+importlib.import_module("edm_planner")
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 REPO = pathlib.Path(__file__).resolve().parent.parent
