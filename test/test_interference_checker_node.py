@@ -1,5 +1,6 @@
 """interference_checker over real DDS, fed by a real geometry_loader."""
 
+import json
 import threading
 import time
 
@@ -29,7 +30,8 @@ def system(tmp_path_factory, field_cache):
     cache = field_cache
     ros.add(GeometryLoaderNode(context=ros.context))
     ros.add(InterferenceCheckerNode(context=ros.context, parameter_overrides=[
-        Parameter("cache_dir", value=str(cache)), Parameter("max_poses", value=2000)]))
+        Parameter("cache_dir", value=str(cache)), Parameter("max_poses", value=2000),
+        Parameter("max_designs", value=2)]))
     client = ros.add(Node("checker_client", context=ros.context))
     got = []
     ready = threading.Event()
@@ -194,6 +196,39 @@ def test_a_re_designed_electrode_is_checked_as_requested(system, default_geometr
     bad = call(system, [rear.final_pose], electrode_id="rear", electrode=msg)
     assert bad.error_code.val in (ErrorCode.INVALID_REQUEST, ErrorCode.INVALID_GEOMETRY) and "split" in bad.message
 
+
+
+def test_re_designed_electrodes_kept_are_the_most_recently_used(system):
+    """With max_designs 2, a third design drops the least recently used one; asked for again, it is made
+    again and answered as before (the node's memory stays bounded however many designs clients send)."""
+    from edm_planner_msgs.msg import ElectrodeDesign
+
+    ros, _, gid, final = system
+    checker = next(n for n in ros.nodes if n.get_name() == "interference_checker")
+    nan = float("nan")
+
+    def design(gap):
+        return ElectrodeDesign(discharge_gap=gap, circumferential_reduction=nan, reduction_side="",
+                               radial_reduction=nan, axial_start=nan, axial_end=nan, split="",
+                               split_fraction=nan, split_overlap=nan)
+
+    def hub(gap):
+        res = call(system, [final], electrode=design(gap), method=CheckInterference.Request.METHOD_FAST)
+        assert res.error_code.val == ErrorCode.SUCCESS, res.message
+        return clearances(res)[0, 2]
+
+    def kept():
+        return [json.loads(key[1])["discharge_gap"] for key in checker.redesigned]
+
+    first = {gap: hub(gap) for gap in (0.15, 0.2)}
+    assert kept() == [0.15, 0.2]
+    hub(0.15)                                    # used again: now the most recent
+    assert kept() == [0.2, 0.15]
+    hub(0.25)
+    assert kept() == [0.15, 0.25]                # 0.2 dropped
+    assert hub(0.2) == first[0.2] and kept() == [0.25, 0.2]
+    # at the geometry's own final pose (gap 0.1 mm) a larger gap leaves a thinner electrode, farther off
+    assert 0.1 < first[0.15] < first[0.2]
 
 def test_a_geometry_loaded_again_after_another_is_the_latest_again(system):
     """Load A (the default), then B (the same blisk, a 0.2 mm gap), then A again: a request naming no

@@ -4,7 +4,8 @@ Builds its models from the geometry_loader's latched ``geometry`` topic
 (every geometry it has seen, by id) and serves ``check_interference``
 (edm_planner_msgs/CheckInterference). A request may re-design the electrodes
 (ElectrodeDesign overrides, as PlanChannel's); each design is made once and
-kept, sharing the geometry's distance field.
+kept (the ``max_designs`` most recently used), sharing the geometry's
+distance field.
 
 Parameters
 ----------
@@ -22,8 +23,11 @@ paper_delta2 : float
     Huang's Delta2 [rad].
 prebuild_fast : bool
     Build the distance field as soon as a geometry arrives.
+max_designs : int
+    Re-designed electrode sets kept in memory (least recently used dropped).
 """
 
+import collections
 import json
 import os
 import threading
@@ -58,9 +62,12 @@ class InterferenceCheckerNode(Node):
         self.declare_parameter("paper_delta1", 0.0)
         self.declare_parameter("paper_delta2", 0.0)
         self.declare_parameter("prebuild_fast", True)
+        self.declare_parameter("max_designs", 8)
         self.checkers = {}
         self.designs = {}                   # geometry id -> the geometry file's electrode design
-        self.redesigned = {}                # (geometry id, design) -> checker with those electrodes
+        # (geometry id, design) -> checker with those electrodes, least recently used first
+        self.redesigned = collections.OrderedDict()
+        self.max_designs = max(1, int(self.get_parameter("max_designs").value))
         self.latest = None
         self._lock = threading.Lock()
         self.create_subscription(BliskGeometry, "geometry", self.on_geometry, LATCHED,
@@ -164,6 +171,8 @@ class InterferenceCheckerNode(Node):
         key = (gid, json.dumps(design.to_dict(), sort_keys=True, default=str))
         with self._lock:
             known = self.redesigned.get(key)
+            if known is not None:
+                self.redesigned.move_to_end(key)
         if known is None:
             try:
                 electrodes = design_electrodes(checker.blisk, design)
@@ -172,6 +181,8 @@ class InterferenceCheckerNode(Node):
             known = checker.with_electrodes({e.electrode_id: (e.mesh, e.final_pose) for e in electrodes})
             with self._lock:
                 self.redesigned[key] = known
+                while len(self.redesigned) > self.max_designs:      # each holds its electrodes' meshes
+                    self.redesigned.popitem(last=False)
             self.get_logger().info(f"geometry {gid[:12]}: electrodes {sorted(known.electrodes)} re-designed")
         return known
 
