@@ -505,6 +505,37 @@ def test_cache_round_trip_and_corrupt_file(default, tmp_path, caplog):
     assert coarse_field(b, tmp_path, "geom-1").build_seconds > 0
 
 
+def test_a_cached_field_is_mapped_from_its_file_and_survives_the_file_being_replaced(default, tmp_path, caplog):
+    """Loading a cached field maps its arrays (milliseconds, pages shared by every process) instead of
+    reading them; a rebuild replacing the file does not change a field already loaded; a compressed
+    archive, which cannot be mapped, is rebuilt."""
+    import mmap
+    import os
+
+    b = default.blisk
+    built = coarse_field(b, tmp_path, "geom-m")
+    loaded = coarse_field(b, tmp_path, "geom-m")
+    assert loaded.build_seconds == 0
+    base = loaded._grid
+    while base is not None and not isinstance(base, mmap.mmap):
+        base = base.base
+    assert isinstance(base, mmap.mmap)
+    pts = built.error_sample_points(200, seed=72)
+    before = loaded.clearances(pts)
+    np.testing.assert_array_equal(before, built.clearances(pts))
+    (path,) = tmp_path.glob("*.npz")
+    with np.load(path) as data:
+        arrays = dict(data)
+    arrays["grid"] = np.zeros_like(arrays["grid"])              # another field written as the product writes:
+    np.savez(tmp_path / "new.npz", **arrays)                     # a new file renamed over the cache
+    os.replace(tmp_path / "new.npz", path)
+    np.testing.assert_array_equal(loaded.clearances(pts), before)
+    np.savez_compressed(path, **arrays)
+    with caplog.at_level(logging.WARNING, logger="edm_planner.interference.fast"):
+        again = coarse_field(b, tmp_path, "geom-m")
+    assert again.build_seconds > 0 and "compressed" in caplog.text
+    np.testing.assert_array_equal(again.clearances(pts), before)
+
 def test_cache_of_another_geometry_is_not_used(default, rotor37, tmp_path):
     coarse_field(default.blisk, tmp_path, "same-key")
     other = coarse_field(rotor37.blisk, tmp_path, "same-key")

@@ -84,6 +84,7 @@ from .field_params import (
     _PITCH, _R0, _SA, _SCALE, _T0, _TC, _X0)
 from .exact_solvers import _behind_kernel, _exact_blade_feet, _fill_profile_table
 from .field_build import _classify_coarse, _fill_coarse, _fill_fine, _fill_lines, _flag_nodes
+from .npz_map import map_npz
 from .field_query import _exact_pose_kernel, _points_kernel, _pose_kernel, _posed_kernel
 
 _log = logging.getLogger(__name__)
@@ -820,10 +821,12 @@ class FastChannelField:
         try:
             with np.load(path, allow_pickle=False) as data:
                 meta = json.loads(str(data["meta"]))
-                if meta.get("version") != CACHE_VERSION or meta.get("fingerprint") != self._fingerprint:
-                    _log.info("fast field: cache %s is for another geometry or version; rebuilding", path)
-                    return False
-                arrays = {name: data[name.lstrip("_")] for name in self._ARRAYS}
+            if meta.get("version") != CACHE_VERSION or meta.get("fingerprint") != self._fingerprint:
+                _log.info("fast field: cache %s is for another geometry or version; rebuilding", path)
+                return False
+            # mapped, not read: pages shared by every process that loads the field, read when touched
+            mapped = map_npz(path, [name.lstrip("_") for name in self._ARRAYS])
+            arrays = {name: mapped[name.lstrip("_")] for name in self._ARRAYS}
             fp, ip = arrays["_fp"], arrays["_ip"]
             if fp.shape != (_NPAR,) or ip.shape != (_NIPAR,) or ip.dtype != np.int64:
                 raise ValueError("parameter vectors")
