@@ -28,6 +28,29 @@ from .prefetch import prefetch
 
 
 @numba.njit(cache=True, inline="always")
+def _turned(y, z, fp):
+    """(rho, y', z'): the radius, and (y, z) turned by minus the grid's middle angle in the query's channel."""
+    return math.sqrt(y * y + z * z), y * fp[_CA] + z * fp[_SA], z * fp[_CA] - y * fp[_SA]
+
+
+@numba.njit(cache=True, inline="always")
+def _grid_coords(x, rho, yr, zr, fp):
+    """Fractional indices (gx, gr, gt) in the blade grid and (hx, hr) in the hub/shroud table.
+
+    The angle is the arctangent of z'/y' (``_ATAN``'s polynomial, valid for
+    |z'| <= y'/2); one definition for the per-point path and the vectorised
+    stage, so that both give the same bits.
+    """
+    t = zr / yr
+    s2 = t * t
+    c = _ATAN
+    phi = t * (c[0] + s2 * (c[1] + s2 * (c[2] + s2 * (c[3] + s2 * (c[4] + s2 * (c[5] + s2 * (
+        c[6] + s2 * (c[7] + s2 * (c[8] + s2 * (c[9] + s2 * c[10]))))))))))
+    return ((x - fp[_X0]) * fp[_IHX], (rho - fp[_R0]) * fp[_IHR], (phi + (fp[_TC] - fp[_T0])) * fp[_IHT],
+            (x - fp[_HX0]) * fp[_IHHX], (rho - fp[_HR0]) * fp[_IHHR])
+
+
+@numba.njit(cache=True, inline="always")
 def _fast_point(x, y, z, flat, hs, fp, ip):
     """The fast path: (suction, pressure, hub, shroud, ok); ok False sends the point to ``_slow_point``.
 
@@ -38,22 +61,11 @@ def _fast_point(x, y, z, flat, hs, fp, ip):
     of the grid's middle angle turned into the query's channel (``_CA``,
     ``_SA``).
     """
-    rho = math.sqrt(y * y + z * z)
     # the angle about the grid's middle angle (turned into channel k): (y', z') = R(-a) (y, z)
-    yr = y * fp[_CA] + z * fp[_SA]
-    zr = z * fp[_CA] - y * fp[_SA]
+    rho, yr, zr = _turned(y, z, fp)
     if not (yr > 0.0 and abs(zr) <= 0.5 * yr):
         return np.nan, np.nan, np.nan, np.nan, False
-    t = zr / yr
-    s2 = t * t
-    c = _ATAN
-    phi = t * (c[0] + s2 * (c[1] + s2 * (c[2] + s2 * (c[3] + s2 * (c[4] + s2 * (c[5] + s2 * (
-        c[6] + s2 * (c[7] + s2 * (c[8] + s2 * (c[9] + s2 * c[10]))))))))))
-    gx = (x - fp[_X0]) * fp[_IHX]
-    gr = (rho - fp[_R0]) * fp[_IHR]
-    gt = (phi + (fp[_TC] - fp[_T0])) * fp[_IHT]
-    hx = (x - fp[_HX0]) * fp[_IHHX]
-    hr = (rho - fp[_HR0]) * fp[_IHHR]
+    gx, gr, gt, hx, hr = _grid_coords(x, rho, yr, zr, fp)
     nan = np.nan
     if not (0.0 <= hx < ip[_NHX] - 1 and 0.0 <= hr < ip[_NHR] - 1 and gx == gx and gr == gr and gt == gt):
         return nan, nan, nan, nan, False
@@ -246,28 +258,16 @@ def _block_cells(m, pts, k0, n, fpt, ipt, xyz, cell, weight, ok):
     answered again by ``_fast_point`` and ``_slow_point`` in stage 3.
     ``pts`` is (3, M): coordinates in rows.
     """
-    c = _ATAN
     lx, lr, lt = ipt[_NX] - 1.0, ipt[_NR] - 1.0, ipt[_NT] - 1.0
     lhx, lhr = ipt[_NHX] - 1.0, ipt[_NHR] - 1.0
     mx, mr, mt = ipt[_NX] - 2, ipt[_NR] - 2, ipt[_NT] - 2
     sr, sx, hsr = 2 * ipt[_NT], 2 * ipt[_NT] * ipt[_NR], 2 * ipt[_NHR]
-    ca, sa = fpt[_CA], fpt[_SA]
     px, py, pz = pts[0, k0:k0 + n], pts[1, k0:k0 + n], pts[2, k0:k0 + n]
     for i in range(n):
         x, y, z = _posed(m, px[i], py[i], pz[i])
         xyz[0, i], xyz[1, i], xyz[2, i] = x, y, z
-        rho = math.sqrt(y * y + z * z)
-        yr = y * ca + z * sa
-        zr = z * ca - y * sa
-        t = zr / yr
-        s2 = t * t
-        phi = t * (c[0] + s2 * (c[1] + s2 * (c[2] + s2 * (c[3] + s2 * (c[4] + s2 * (c[5] + s2 * (
-            c[6] + s2 * (c[7] + s2 * (c[8] + s2 * (c[9] + s2 * c[10]))))))))))
-        gx = (x - fpt[_X0]) * fpt[_IHX]
-        gr = (rho - fpt[_R0]) * fpt[_IHR]
-        gt = (phi + (fpt[_TC] - fpt[_T0])) * fpt[_IHT]
-        hx = (x - fpt[_HX0]) * fpt[_IHHX]
-        hr = (rho - fpt[_HR0]) * fpt[_IHHR]
+        rho, yr, zr = _turned(y, z, fpt)
+        gx, gr, gt, hx, hr = _grid_coords(x, rho, yr, zr, fpt)      # y' = 0 gives inf/NaN here: not ok
         # bitwise & on the comparisons: no short-circuit branches (NaN compares False: not ok)
         good = ((yr > 0.0) & (abs(zr) <= 0.5 * yr) & (gx >= 0.0) & (gx < lx) & (gr >= 0.0) & (gr < lr)
                 & (gt >= 0.0) & (gt < lt) & (hx >= 0.0) & (hx < lhx) & (hr >= 0.0) & (hr < lhr))
