@@ -11,8 +11,10 @@ import hashlib as _hashlib
 import os as _os
 import sys as _sys
 
+#: the user's cache: distance fields (keyed by geometry id) and, under ``numba/``, compiled kernels
+CACHE_ROOT = _os.path.join(_os.path.expanduser("~"), ".cache", "edm_planner")
 #: where our compiled numba kernels are kept, one subdirectory per version of the kernel sources
-NUMBA_CACHE_ROOT = _os.path.join(_os.path.expanduser("~"), ".cache", "edm_planner", "numba")
+NUMBA_CACHE_ROOT = _os.path.join(CACHE_ROOT, "numba")
 
 
 def kernel_sources_digest(package=_os.path.dirname(__file__)):

@@ -21,10 +21,11 @@ import pathlib
 import sys
 import time
 
+from . import CACHE_ROOT
 from .errors import EdmError, ErrorCode
 from .planning.store import PlanStoreError, open_store
 
-DEFAULT_CACHE = os.path.join(os.path.expanduser("~"), ".cache", "edm_planner")
+DEFAULT_CACHE = CACHE_ROOT
 
 
 def _parser():

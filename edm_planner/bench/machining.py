@@ -12,9 +12,9 @@ loaded before the clock starts.
 """
 
 import logging
-import os
 import time
 
+from ..cli import DEFAULT_CACHE
 from . import CONFIG
 
 _log = logging.getLogger(__name__)
@@ -52,7 +52,7 @@ def bench_electrode_set(blisks=BLISKS):
     from ..machine.config import load_machine
     from ..machining.electrode_set import SetDesigner
 
-    cache = os.path.join(os.path.expanduser("~"), ".cache", "edm_planner")
+    cache = DEFAULT_CACHE
     machine = load_machine(CONFIG / "machine.yaml")
     out = {"machine": "config/machine.yaml", "tolerance_mm": 0.02, "area_share_target": 0.99, "time_target_s": 60}
     for name in blisks:

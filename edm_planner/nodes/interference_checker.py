@@ -29,7 +29,6 @@ max_designs : int
 
 import collections
 import json
-import os
 import threading
 
 import numpy as np
@@ -39,6 +38,7 @@ from geometry_msgs.msg import Point
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 
+from .. import CACHE_ROOT
 from ..errors import EdmError, ErrorCode
 from ..geometry.blisk import Blisk
 from ..geometry.electrode import ElectrodeDesign, design_electrodes
@@ -76,8 +76,7 @@ class InterferenceCheckerNode(Node):
                                            callback_group=MutuallyExclusiveCallbackGroup())
 
     def _options(self):
-        cache = self.get_parameter("cache_dir").value or os.path.join(
-            os.path.expanduser("~"), ".cache", "edm_planner")
+        cache = self.get_parameter("cache_dir").value or CACHE_ROOT
         return CheckerOptions(
             max_poses=int(self.get_parameter("max_poses").value),
             fast_spacing=float(self.get_parameter("fast_spacing").value), cache_dir=cache,

@@ -31,6 +31,8 @@ import time
 
 import numpy as np
 
+from .. import CACHE_ROOT
+
 _log = logging.getLogger(__name__)
 
 #: the nodes a soak runs against
@@ -163,7 +165,7 @@ def run_soak(work_dir, n_check=1000, n_plan=100, n_distinct=50, sample_every=100
     os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
     work = pathlib.Path(work_dir)
     store_dir = str(store_dir or work / "plan_store")
-    cache_dir = str(cache_dir or pathlib.Path("~/.cache/edm_planner").expanduser())
+    cache_dir = str(cache_dir or CACHE_ROOT)
     node_params = {"trajectory_planner": {"plan_store": store_dir, "cache_dir": cache_dir,
                                           "unknown_geometry_wait": 120.0, "geometry_wait": 900.0},   # a new field
                    "interference_checker": {"cache_dir": cache_dir}}

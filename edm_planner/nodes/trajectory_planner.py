@@ -46,6 +46,7 @@ from geometry_msgs.msg import PoseArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 
+from .. import CACHE_ROOT
 from ..errors import EdmError, ErrorCode
 from ..geometry.blisk import Blisk
 from ..geometry.electrode import ElectrodeDesign, design_electrodes
@@ -281,8 +282,7 @@ class TrajectoryPlannerNode(Node):
             prepared.parsed.set()          # stored plans are answered from here on
             electrodes = design_electrodes(blisk, design)
             prepared.geometry = LoadedGeometry(gid, blisk, design, electrodes, source=model.get("source", ""))
-            cache = self.get_parameter("cache_dir").value or os.path.join(os.path.expanduser("~"), ".cache",
-                                                                            "edm_planner")
+            cache = self.get_parameter("cache_dir").value or CACHE_ROOT
             prepared.field = FastChannelField(blisk, spacing=float(self.get_parameter("fast_spacing").value),
                                               cache_dir=cache, cache_key=gid)
             self.get_logger().info(f"geometry {gid[:12]} ready for planning: electrodes "
@@ -398,8 +398,7 @@ class TrajectoryPlannerNode(Node):
                 self.progress_pub.publish(PlanProgress(request_id=request_id, stage=stage,
                                                        fraction=float(fraction), message=message))
 
-            cache = self.get_parameter("cache_dir").value or os.path.join(os.path.expanduser("~"), ".cache",
-                                                                            "edm_planner")
+            cache = self.get_parameter("cache_dir").value or CACHE_ROOT
             designer = SetDesigner(prepared.geometry, prepared.field, options, set_options, cycle_options,
                                    progress=progress, field_cache=(cache, gid))
             result = designer.design(int(request.channel))
