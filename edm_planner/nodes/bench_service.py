@@ -12,8 +12,12 @@ import numpy as np
 
 
 @contextlib.contextmanager
-def _nodes_in_process():
-    """geometry_loader and interference_checker spinning in this process, and a client node."""
+def nodes_in_process():
+    """geometry_loader and interference_checker spinning in this process, and a client node.
+
+    Yields (loader, checker, client); pass it as ``nodes`` to the round trips
+    below to time several of them on one bring-up.
+    """
     import os
     import threading
 
@@ -72,13 +76,18 @@ def _median_call_ms(client, srv_type, name, request, repeat):
     return round(1e3 * float(np.median(times)), 1), response
 
 
-def service_round_trip(n_poses, poses_near, repeat=7):
+def _bring_up(nodes):
+    """``nodes`` as a context (the caller's bring-up), or a bring-up of this call's own."""
+    return contextlib.nullcontext(nodes) if nodes is not None else nodes_in_process()
+
+
+def service_round_trip(n_poses, poses_near, repeat=7, nodes=None):
     """Median round trip [ms] of CheckInterference (fast method) of ``n_poses`` poses near the final pose."""
     from edm_planner_msgs.srv import CheckInterference
 
     from .conversions import matrix_to_pose
 
-    with _nodes_in_process() as (_, checker, client):
+    with _bring_up(nodes) as (_, checker, client):
         gid, ch = next(iter(checker.checkers.items()))
         ch.fast                                                  # field built before timing
         final = next(iter(ch.electrodes.values()))[1]
@@ -90,7 +99,7 @@ def service_round_trip(n_poses, poses_near, repeat=7):
         return ms
 
 
-def load_geometry_round_trip(path, repeat=7):
+def load_geometry_round_trip(path, repeat=7, nodes=None):
     """Median round trip [ms] of LoadGeometry of a file the geometry_loader has loaded already.
 
     The node loads its default file when it starts; the timed calls name
@@ -98,7 +107,7 @@ def load_geometry_round_trip(path, repeat=7):
     """
     from edm_planner_msgs.srv import LoadGeometry
 
-    with _nodes_in_process() as (_, _, client):
+    with _bring_up(nodes) as (_, _, client):
         ms, response = _median_call_ms(client, LoadGeometry, "load_geometry", LoadGeometry.Request(path=str(path)),
                                        repeat)
         if not response.success:
