@@ -8,7 +8,9 @@ copy. ``np.savez`` stores members uncompressed, so each member's ``.npy``
 data sits contiguous in the file; this maps it copy-on-write (``mode="c"``):
 pages come from the page cache shared by every process, are read when first
 touched, and a write (none is made) would stay private. Written by hand:
-neither numpy nor another library maps ``.npz`` members.
+neither numpy nor another library maps ``.npz`` members; a directory of
+``.npy`` files, which ``np.load(mmap_mode=...)`` maps, would lose the cache's
+single-file atomic replace (a reader sees the old field or the new one).
 """
 
 import struct
