@@ -360,14 +360,18 @@ def system(request, tmp_path_factory, field_cache):
         assert load.success, load.message
         s.gid = load.geometry_id
         s.count("LoadGeometry", "good")
-        s.good_plan(timeout=600)             # waits for the planner's field (the run's cache) and plans once
+        # the planner and the checker may still be receiving the latched geometry (the planner waits only
+        # 0.2 s for an unknown id here): ready when they stop answering UNKNOWN_ID, then the known-good plan
+        # (which waits for the planner's field, the run's cache)
+        known = (lambda: s.call(PlanChannel, "plan_channel", PlanChannel.Request(     # refused once known
+                     geometry_id=s.gid, settings=PlannerSettings(weights_smoothness=[1.0] * 4))),
+                 lambda: s.call(CheckInterference, "check_interference", CheckInterference.Request(
+                     geometry_id=s.gid, axis_names=list(AXES_5), axis_values=[AxisPoint(positions=[0.0] * 5)])))
         deadline = time.monotonic() + 120
-        while True:                          # the checker may still be receiving the latched geometry
-            res = s.call(CheckInterference, "check_interference", CheckInterference.Request(
-                geometry_id=s.gid, axis_names=list(AXES_5), axis_values=[AxisPoint(positions=[0.0] * 5)]))
-            if res.error_code.val != ErrorCode.UNKNOWN_ID or time.monotonic() > deadline:
-                break
-            time.sleep(0.2)
+        for ask in known:
+            while ask().error_code.val == ErrorCode.UNKNOWN_ID and time.monotonic() < deadline:
+                time.sleep(0.2)
+        s.good_plan(timeout=600)
         s.setup_s = time.monotonic() - t0
         yield s
         s.alive()
