@@ -330,11 +330,14 @@ def _plan_set(args, geometry, options, store, progress, out, err):
     progress("field", 0.0, 0, 0.0, "distance field")
     field = FastChannelField(geometry.blisk, spacing=0.1, cache_dir=args.cache_dir, cache_key=geometry.geometry_id)
 
-    def on_set(stage, fraction, message):
-        progress(stage, fraction, 0, 0.0, message)
+    def on_step(record):
+        """A SetProgress record -> a progress line: candidate, piece, sizing step, percent, time left (estimate)."""
+        left = record.estimated_time_left
+        parts = [record.where(), "time left ?" if left != left else f"time left ~{left:.0f} s", record.message]
+        progress("set", record.fraction, 0, 0.0, " | ".join(p for p in parts if p))
 
     designer = SetDesigner(geometry, field, options, SetOptions(time_budget=max(args.time_budget, 60.0) * 15),
-                           progress=on_set, field_cache=(args.cache_dir, geometry.geometry_id))
+                           field_cache=(args.cache_dir, geometry.geometry_id), detail=on_step)
     result = designer.design(args.channel)
     not_kept = ""
     try:

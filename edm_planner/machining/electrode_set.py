@@ -26,7 +26,9 @@ import hashlib
 import json
 import logging
 import os
+import threading
 import time
+from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
@@ -38,6 +40,7 @@ from ..machine.kinematics import axis_poses
 from ..planning.plan import PlanOptions
 from ..planning.planner import add_exact_clearance, plan_channel, plan_id_for
 from .cycle import CycleBuilder, CycleOptions, shift_channel
+from .set_progress import SetDesignCancelled, SetProgress, terminate_pool
 
 _log = logging.getLogger(__name__)
 
@@ -225,6 +228,9 @@ class SetDesigner:
     cycle_options : CycleOptions
     progress : callable, optional
         ``progress(stage, fraction, message)``.
+    detail : callable, optional
+        ``detail(SetProgress)``: the same reports, structured (candidate, piece, sizing step and
+        values, fraction, elapsed and estimated time left; :mod:`.set_progress`), also from the workers.
     field_cache : (str, str), optional
         (cache directory, cache key) of ``field``: with it the pieces of a
         candidate are sized in parallel worker processes (``workers``, default
@@ -233,7 +239,7 @@ class SetDesigner:
     """
 
     def __init__(self, geometry, field, plan_options=None, options=None, cycle_options=None, progress=None,
-                 field_cache=None, workers=None):
+                 field_cache=None, workers=None, detail=None):
         self.geometry = geometry
         self.blisk = geometry.blisk
         self.field = field
@@ -251,12 +257,17 @@ class SetDesigner:
                            f"{base.discharge_gap:g} mm")
         self.plan_options = self.machining_plan_options(plan_options, base, self.options)
         self.progress = progress
+        self.detail = detail
         self.field_cache = field_cache
         self.workers = int(workers or os.cpu_count() or 1)
         self._pool = None
         self._wall_samples = None
         self.t0 = None
         self._where, self._name = (0, 1, 0, 1), ""
+        self._sizing = ""                # what the sizing step tries: start, radial, circumferential
+        self._fraction = 0.0             # the last fraction reported (reports never go back)
+        self._cancel = threading.Event()
+        self._reports = None             # the workers' SetProgress records (a multiprocessing queue)
         b = self.blisk
         self.h_max = 0.9 * float(np.min(b.pitch - (b.blade.theta_plus - b.blade.theta_minus)))
         self.r_start = self.options.radial_start * b.channel_height_range[0]
@@ -289,10 +300,41 @@ class SetDesigner:
         return None
 
     # -- helpers -----------------------------------------------------------------------------
-    def _report(self, fraction, message):
+    def _report(self, fraction, message, **step):
+        """Report a step to ``progress`` and, structured (``step``: :class:`SetProgress` fields), to ``detail``.
+
+        Raises SetDesignCancelled after :meth:`cancel`: every step is a point where the design stops.
+        """
+        self._check_cancel()
+        fraction = self._fraction = max(float(min(fraction, 0.99)), self._fraction)
         _log.info("electrode set: %s", message)
         if self.progress is not None:
-            self.progress("electrode set", float(min(fraction, 0.99)), message)
+            self.progress("electrode set", fraction, message)
+        if self.detail is not None:
+            ci, nc, pj, npc = self._where
+            where = dict(candidate=self._name, candidate_index=ci, candidate_count=nc, piece_index=pj,
+                         piece_count=npc, message=message)
+            elapsed = self._elapsed() if self.t0 is not None else 0.0
+            self.detail(SetProgress(**{**where, **step}).timed(fraction, elapsed,
+                                                                self.options.time_budget - elapsed))
+
+    def cancel(self):
+        """Stop the design from another thread: :meth:`design` raises SetDesignCancelled at its next step.
+
+        The sizing worker processes are terminated at once (a running job is not waited for), so the
+        design stops within about a second (at most one search step of a plan sized in this process).
+        """
+        self._cancel.set()
+        if self._pool is not None:
+            terminate_pool(self._pool)
+
+    def _check_cancel(self):
+        if self._cancel.is_set():
+            raise SetDesignCancelled("the electrode-set design was cancelled")
+
+    def _search_progress(self, stage, fraction, nodes, reference, message=""):
+        """plan_channel's progress while sizing: only a point where a cancelled design stops."""
+        self._check_cancel()
 
     def _elapsed(self):
         return time.perf_counter() - self.t0
@@ -304,12 +346,15 @@ class SetDesigner:
         ci, nc, pj, npc = self._where
         share = min(len(piece.tried) / 12.0, 0.95)            # about a dozen certified plans size a piece
         self._report((ci + (pj + share) / npc) / nc, f"{self._name}: {piece.label} electrode, h {h:.4f} rad, "
-                                                       f"radial reduction {radial:.3f} mm")
+                                                       f"radial reduction {radial:.3f} mm",
+                     piece=piece.label, sizing_parameter=self._sizing, sizing_step=len(piece.tried) + 1,
+                     circumferential_reduction=float(h), radial_reduction=float(radial))
         design = replace(piece.design, circumferential_reduction=float(h), radial_reduction=float(radial))
         try:
             plan = plan_channel(self.geometry, 0, piece.electrode_id, self.plan_options, field=self.field,
                                 design=design, electrodes=self._designed(design, piece.electrode_id),
-                                exact_clearance=False)             # the chosen plan's only, in size_piece
+                                exact_clearance=False,             # the chosen plan's only, in size_piece
+                                progress=self._search_progress)    # a cancelled design stops mid-search
         except EdmError as e:                     # a reduction that leaves no electrode
             piece.tried.append((h, radial, f"{e.code.name}: {e.message[:120]}"))
             return None, design
@@ -323,6 +368,7 @@ class SetDesigner:
         # start designs, most promising first; a reduction that leaves no electrode (a narrow half of a
         # left/right split) is skipped at the cost of a design, not of a plan
         plan = None
+        self._sizing = "start"
         for fh, fr in ((0.5, 1.0), (0.25, 1.0), (1.0, 2.0), (0.5, 2.0)):
             h_hi, r_hi = fh * self.h_max, fr * self.r_start
             plan, design = self._plan(piece, h_hi, r_hi)
@@ -331,6 +377,7 @@ class SetDesigner:
         if plan is None:
             return False
         best = (plan, design)
+        self._sizing = "radial"
         lo = 0.0                                   # radial first: the least shroud stock
         if r_hi > 0:                               # none at all leaves none (and needs no plunges)
             p, d = self._plan(piece, h_hi, 0.0)
@@ -338,6 +385,7 @@ class SetDesigner:
                 r_hi, best = 0.0, (p, d)
         r_hi, best = self._bisect(lo, r_hi, o.radial_resolution, lambda r: self._plan(piece, h_hi, r), best)
         # then the thickest electrode
+        self._sizing = "circumferential"
         h_hi, best = self._bisect(0.0, h_hi, o.circumferential_resolution, lambda h: self._plan(piece, h, r_hi), best)
         piece.plan, piece.design = best
         add_exact_clearance(piece.plan, self.blisk, self.field)
@@ -403,6 +451,10 @@ class SetDesigner:
         """Design, prove and choose; the chosen pieces' plans and cycles moved to ``channel``."""
         try:
             return self._design(channel)
+        except Exception:
+            if self._cancel.is_set():      # a worker terminated by cancel() breaks whatever waited on it
+                raise SetDesignCancelled("the electrode-set design was cancelled") from None
+            raise
         finally:
             self.close()
 
@@ -420,6 +472,7 @@ class SetDesigner:
             if self._out_of_time():
                 cand.status, cand.reason = "time budget", f"the time budget of {self.options.time_budget:g} s was used up"
                 continue
+            self._where, self._name = (i, len(cands), 0, cand.electrode_count), cand.name
             self._report(i / len(cands), f"candidate {cand.name}: sizing {cand.electrode_count} electrode(s)")
             self._evaluate(cand, i, len(cands))
             if cand.status == "accepted":
@@ -472,14 +525,25 @@ class SetDesigner:
         self._report(index / count, f"{cand.name}: sizing {len(cand.pieces)} electrodes in {self.workers} "
                                      f"worker processes")
         remaining = self.options.time_budget - self._elapsed()
-        futures = [pool.submit(_size_in_worker, piece, remaining) for piece in cand.pieces]
-        done = []
-        for j, future in enumerate(futures):
-            ok, sized = future.result()
-            cand.pieces[j] = sized
-            done.append(ok)
-            self._report((index + (j + 1) / len(futures) * 0.9) / count,
-                         f"{cand.name}: {sized.label} electrode {'sized' if ok else 'has no certified path'}")
+        n = len(cand.pieces)
+        pending = {j: pool.submit(_size_in_worker, piece, remaining, (index, count, j, n), cand.name)
+                   for j, piece in enumerate(cand.pieces)}
+        done, shares = [None] * n, [0.0] * n          # per piece: sized?, share of its sizing done
+        while pending:
+            finished, _ = wait(list(pending.values()), timeout=0.25, return_when=FIRST_COMPLETED)
+            self._check_cancel()
+            for record in _drain(self._reports):       # the workers' steps, each reported here
+                shares[record.piece_index] = max(shares[record.piece_index], min(record.sizing_step / 12.0, 0.95))
+                self._report((index + 0.9 * sum(shares) / n) / count, record.message, piece=record.piece,
+                             piece_index=record.piece_index, sizing_parameter=record.sizing_parameter,
+                             sizing_step=record.sizing_step, radial_reduction=record.radial_reduction,
+                             circumferential_reduction=record.circumferential_reduction)
+            for j in [j for j, f in pending.items() if f in finished]:
+                ok, sized = pending.pop(j).result()
+                cand.pieces[j], done[j], shares[j] = sized, ok, 1.0
+                self._report((index + 0.9 * sum(shares) / n) / count,
+                             f"{cand.name}: {sized.label} electrode {'sized' if ok else 'has no certified path'}",
+                             piece=sized.label, piece_index=j)
         return done
 
     def _workers_pool(self):
@@ -491,18 +555,26 @@ class SetDesigner:
             from concurrent.futures import ProcessPoolExecutor
 
             # spawn, not fork: the caller may be a multi-threaded ROS node
+            context = multiprocessing.get_context("spawn")
+            self._reports = context.Queue() if self.detail is not None else None
             self._pool = ProcessPoolExecutor(
-                max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
+                max_workers=self.workers, mp_context=context,
                 initializer=_start_worker,
                 initargs=(pickle.dumps(self.geometry), self.field.spacing, self.field_cache, self.plan_options,
-                          self.options, self.cycle_options, self.base))
+                          self.options, self.cycle_options, self.base, self._reports))
         return self._pool
 
     def close(self):
-        """Stop the worker processes (if any)."""
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+        """Stop the worker processes (if any): after their running jobs, or at once after :meth:`cancel`."""
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            if self._cancel.is_set():
+                terminate_pool(pool)
+            else:
+                pool.shutdown(wait=True, cancel_futures=True)
+        if self._reports is not None:
+            self._reports.close()
+            self._reports = None
 
     def _evaluate(self, cand, index=0, count=1):
         self._name = cand.name
@@ -537,7 +609,7 @@ class SetDesigner:
 _WORKER = None
 
 
-def _start_worker(geometry_blob, spacing, field_cache, plan_options, options, cycle_options, base):
+def _start_worker(geometry_blob, spacing, field_cache, plan_options, options, cycle_options, base, reports=None):
     """Worker process: the geometry, its field from the cache and a designer of its own."""
     import pickle
 
@@ -549,15 +621,30 @@ def _start_worker(geometry_blob, spacing, field_cache, plan_options, options, cy
     numba.set_num_threads(1)             # the pool is the parallelism: one thread per worker process
     geometry = pickle.loads(geometry_blob)
     field = FastChannelField(geometry.blisk, spacing=spacing, cache_dir=field_cache[0], cache_key=field_cache[1])
-    _WORKER = SetDesigner(geometry, field, plan_options, options, cycle_options)
+    _WORKER = SetDesigner(geometry, field, plan_options, options, cycle_options,
+                          detail=None if reports is None else reports.put)     # the steps, to the parent
     _WORKER.base = base
 
 
-def _size_in_worker(piece, remaining):
+def _size_in_worker(piece, remaining, where=(0, 1, 0, 1), name=""):
     """Size one piece in a worker; (ok, the piece with its plan and cycle)."""
     _WORKER.t0 = time.perf_counter() - (_WORKER.options.time_budget - remaining)
+    _WORKER._where, _WORKER._name, _WORKER._fraction = where, name, 0.0
     ok = _WORKER.size_piece(piece)
     return ok, piece
+
+
+def _drain(reports):
+    """The SetProgress records waiting in a worker queue (none without one)."""
+    import queue
+
+    out = []
+    while reports is not None:
+        try:
+            out.append(reports.get_nowait())
+        except (queue.Empty, OSError, ValueError):
+            break
+    return out
 
 
 def removal_figures(report):
