@@ -93,9 +93,11 @@ from collections import OrderedDict
 
 import numpy as np
 from builtin_interfaces.msg import Duration
+from edm_planner_msgs.action import ExecutePlan as ExecutePlanAction
 from edm_planner_msgs.msg import ChannelPlan
 from edm_planner_msgs.srv import ExecutePlan
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -229,6 +231,12 @@ class AxisBridgeNode(Node):
                                                     self.get_parameter("trajectory_topic").value, 10)
         self.service = self.create_service(ExecutePlan, "execute_plan", self.on_execute,
                                            callback_group=MutuallyExclusiveCallbackGroup())
+        # the same as an action that follows the trajectory (feedback, cancel = stop); one followed at a time
+        self._following = None              # threading.Event of the goal being followed (set: cancel)
+        self._follow_lock = threading.Lock()
+        self.action = ActionServer(self, ExecutePlanAction, "execute_plan", self.execute_goal,
+                                   goal_callback=self.on_goal, cancel_callback=self.on_cancel,
+                                   callback_group=ReentrantCallbackGroup())
 
     def on_plan(self, msg):
         try:
@@ -251,7 +259,81 @@ class AxisBridgeNode(Node):
     def on_execute(self, request, response):
         return answer(self, "ExecutePlan", self._execute, request, response)
 
+    def on_goal(self, goal):
+        """Accept an ExecutePlan goal unless another goal's trajectory is being followed."""
+        with self._follow_lock:
+            if self._following is not None:
+                self.get_logger().warning(f"ExecutePlan goal ({goal.plan_id}) rejected: another goal's trajectory "
+                                          f"is being followed (cancel it first)")
+                return GoalResponse.REJECT
+            self._following = threading.Event()
+        return GoalResponse.ACCEPT
+
+    def on_cancel(self, goal_handle):
+        stop = self._following
+        if stop is not None:
+            stop.set()
+        return CancelResponse.ACCEPT
+
+    def execute_goal(self, goal_handle):
+        """The action's body: ``_execute`` (the service's), then, with ``follow``, the trajectory followed by the
+        clock (feedback about every 0.5 s); cancel while following publishes the stop trajectory."""
+        goal, stop = goal_handle.request, self._following
+        result = ExecutePlanAction.Result()
+        sent = {}
+
+        def fill(g, r):
+            sent["arrays"], sent["start"] = self._execute(g, r)
+
+        try:
+            answer(self, "ExecutePlan", fill, goal, result)
+            if not result.success:
+                goal_handle.abort()
+                return result
+            start = sent.get("start")
+            if start is None or not goal.follow:            # dry run, or not asked to follow
+                goal_handle.succeed()
+                return result
+            return self._follow(goal_handle, result, sent["arrays"], start, stop)
+        finally:
+            with self._follow_lock:
+                self._following = None
+
+    def _follow(self, goal_handle, result, arrays, start, stop, period=0.5):
+        """Feedback along a published trajectory until its duration has passed, or stop it on cancel."""
+        duration = float(arrays.duration)
+        times = [float(m.time) for m in arrays.phases]
+        while True:
+            executed = time.monotonic() - start
+            if stop.is_set() or goal_handle.is_cancel_requested:
+                self.trajectory_pub.publish(JointTrajectory(joint_names=list(arrays.joint_names)))
+                result.message += (f"; CANCELED at {executed:.2f} s of {duration:.2f} s: stop sent on "
+                                   f"{self.trajectory_pub.topic_name} (an empty JointTrajectory)")
+                self.get_logger().info(result.message)
+                goal_handle.canceled()
+                return result
+            k = max(0, int(np.searchsorted(times, min(executed, duration), side="right")) - 1)
+            mark = arrays.phases[k] if arrays.phases else None
+            goal_handle.publish_feedback(ExecutePlanAction.Feedback(
+                executed_time=float(min(executed, duration)), duration=duration,
+                phase=mark.phase if mark else "feed", channel=int(mark.channel) if mark else 0,
+                fraction=float(min(executed / duration, 1.0)) if duration > 0 else 1.0,
+                message=f"{min(executed, duration):.1f} of {duration:.1f} s"))
+            if executed >= duration:
+                break
+            stop.wait(min(period, duration - executed))
+        result.message += f"; followed for {duration:.2f} s (by the bridge's clock)"
+        goal_handle.succeed()
+        return result
+
     def _execute(self, request, response):
+        """ExecutePlan, for the service and the action (a Request or a Goal; a Response or a Result).
+
+        Returns
+        -------
+        (JointTrajectoryArrays, float or None)
+            What was timed, and when it was published (``time.monotonic()``; None for a dry run).
+        """
         # a plan published just before the request may still be on its way (or being read): wait a little
         with self._lock:
             plan = self.plans.get(request.plan_id)
@@ -319,8 +401,10 @@ class AxisBridgeNode(Node):
             summary += "; " + self._export(export_name, arrays, export_dir, sequence or plan)
         if response.next_electrode:
             summary += f"; then change the electrode: next {response.next_electrode} (electrode {request.electrode + 1})"
+        started = None
         if not request.dry_run:
             self.trajectory_pub.publish(joint_trajectory_msg(arrays))
+            started = time.monotonic()
             summary += f"; sent on {self.trajectory_pub.topic_name} as joints {arrays.joint_names}"
         else:
             summary += "; dry run, nothing sent"
@@ -328,6 +412,7 @@ class AxisBridgeNode(Node):
         response.error_code = error_code(ErrorCode.SUCCESS)
         response.message = summary
         self.get_logger().info(summary)
+        return arrays, started
 
     def _from_store(self, plan_id):
         """(plan, '') from the plan store (a PlanCycle, with the record's cycle), or (None, why not) ."""

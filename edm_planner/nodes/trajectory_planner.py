@@ -36,14 +36,17 @@ plan_store : str
 import json
 import os
 import threading
+import time
 
 import numpy as np
+from edm_planner_msgs.action import PlanElectrodeSet as PlanElectrodeSetAction
 from edm_planner_msgs.msg import (AxisPath, AxisPoint, BliskGeometry, ChannelPlan, PlanMetrics, PlanProgress,
                                   RoughingStatistics)
 from edm_planner_msgs.msg import ElectrodeSetCandidate
 from edm_planner_msgs.srv import PlanChannel, PlanElectrodeSet, PlanRoughing
 from geometry_msgs.msg import PoseArray
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 
 from .. import CACHE_ROOT
@@ -53,6 +56,7 @@ from ..geometry.electrode import ElectrodeDesign, design_electrodes
 from ..geometry.loader import LoadedGeometry
 from ..interference import SURFACES
 from ..interference.fast import FastChannelField
+from ..machining.set_progress import SetDesignCancelled
 from ..paths import export_path
 from ..planning.certificate import META_KEY, NotCertifiedError, verify_record
 from ..planning.objective import Weights
@@ -170,6 +174,61 @@ def candidate_msg(c):
     return msg
 
 
+def set_feedback_msg(record, stage="electrode set"):
+    """A SetProgress record (``edm_planner.machining.set_progress``) -> PlanElectrodeSet action feedback."""
+    return PlanElectrodeSetAction.Feedback(
+        candidate=record.candidate, candidate_index=int(record.candidate_index),
+        candidate_count=int(record.candidate_count), piece=record.piece, piece_index=int(record.piece_index),
+        piece_count=int(record.piece_count), sizing_parameter=record.sizing_parameter,
+        sizing_step=int(record.sizing_step), circumferential_reduction=float(record.circumferential_reduction),
+        radial_reduction=float(record.radial_reduction), fraction=float(record.fraction),
+        estimated_time_left=float(record.estimated_time_left), elapsed=float(record.elapsed), stage=stage,
+        message=record.message)
+
+
+class _FeedbackThrottle:
+    """Publishes a goal's feedback at most every ``period`` seconds, and at once when the candidate or piece changes."""
+
+    def __init__(self, goal_handle, period=0.1):
+        self.goal_handle, self.period = goal_handle, period
+        self.last, self.where, self.count = -float("inf"), None, 0
+
+    def __call__(self, msg):
+        where = (msg.candidate, msg.piece, msg.stage)
+        now = time.monotonic()
+        if where == self.where and now - self.last < self.period:
+            return
+        self.last, self.where = now, where
+        self.count += 1
+        self.goal_handle.publish_feedback(msg)
+
+
+class _SetJob:
+    """The set design of one action goal: a cancel reaches its designer whenever it comes (before it exists too)."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self.designer = None
+        self.cancelled = False
+
+    def attach(self, designer):
+        with self._lock:
+            self.designer = designer
+            if self.cancelled:
+                designer.cancel()
+
+    def cancel(self):
+        with self._lock:
+            self.cancelled = True
+            designer = self.designer
+        if designer is not None:
+            designer.cancel()            # terminates the sizing workers: outside the lock
+
+    def check(self):
+        if self.cancelled:
+            raise SetDesignCancelled("the electrode-set design was cancelled")
+
+
 def statistics_msg(d):
     """ErrorStats.to_dict() -> RoughingStatistics message."""
     return RoughingStatistics(point_count=int(d["count"]), mean_absolute_error=float(d["mean_abs"]),
@@ -260,6 +319,12 @@ class TrajectoryPlannerNode(Node):
                                                     callback_group=MutuallyExclusiveCallbackGroup())
         self.set_service = self.create_service(PlanElectrodeSet, "plan_electrode_set", self.on_plan_set,
                                                callback_group=MutuallyExclusiveCallbackGroup())
+        # the same work as an action (feedback, cancel); one set design at a time, by either
+        self._set_lock = threading.Lock()
+        self._set_job = None
+        self.set_action = ActionServer(self, PlanElectrodeSetAction, "plan_electrode_set", self.execute_plan_set,
+                                       goal_callback=self.on_set_goal, cancel_callback=self.on_set_cancel,
+                                       callback_group=ReentrantCallbackGroup())
 
     # -- geometry ---------------------------------------------------------------------------
     def on_geometry(self, msg):
@@ -367,9 +432,59 @@ class TrajectoryPlannerNode(Node):
 
     # -- electrode sets ---------------------------------------------------------------------
     def on_plan_set(self, request, response):
-        return answer(self, "PlanElectrodeSet", self._plan_set, request, response)
+        with self._set_lock:                # one set design at a time: waits for an action goal's design
+            return answer(self, "PlanElectrodeSet", self._plan_set, request, response)
 
-    def _plan_set(self, request, response):
+    def on_set_goal(self, goal):
+        """Accept a PlanElectrodeSet goal unless a set is being designed (its lock is held until the goal ends)."""
+        if not self._set_lock.acquire(blocking=False):
+            self.get_logger().warning(f"PlanElectrodeSet goal (channel {goal.channel}) rejected: another electrode "
+                                      f"set is being designed (one at a time; try again when it is done)")
+            return GoalResponse.REJECT
+        self._set_job = _SetJob()
+        return GoalResponse.ACCEPT
+
+    def on_set_cancel(self, goal_handle):
+        job = self._set_job
+        if job is not None:
+            job.cancel()
+            self.get_logger().info("PlanElectrodeSet goal: cancel requested, stopping the design")
+        return CancelResponse.ACCEPT
+
+    def execute_plan_set(self, goal_handle):
+        """The action's body: ``_plan_set`` with feedback and cancel; SUCCEEDED iff the result's ``success``."""
+        job = self._set_job
+        result = PlanElectrodeSetAction.Result()
+        throttle = _FeedbackThrottle(goal_handle)
+        t0 = time.monotonic()
+
+        def fill(goal, res):
+            try:
+                self._plan_set(goal, res, job=job,
+                              detail=lambda r, stage="electrode set": throttle(set_feedback_msg(r, stage)))
+            except SetDesignCancelled:
+                job.cancelled = True
+
+        try:
+            answer(self, "PlanElectrodeSet", fill, goal_handle.request, result)
+            if job.cancelled and not result.plan_ids and not result.candidates:
+                result.success, result.error_code = False, error_code(ErrorCode.SUCCESS)
+                result.message = (f"cancelled after {time.monotonic() - t0:.1f} s: nothing delivered, nothing "
+                                  f"written to the plan store")
+                goal_handle.canceled()
+                self.get_logger().info(f"PlanElectrodeSet goal {result.message}")
+            elif result.success:
+                goal_handle.succeed()
+            else:
+                goal_handle.abort()
+            return result
+        finally:
+            self._set_job = None
+            self._set_lock.release()
+
+    def _plan_set(self, request, response, detail=None, job=None):
+        """PlanElectrodeSet, for the service and the action alike (request: a Request or a Goal, response: a
+        Response or a Result); ``detail(SetProgress)`` gets the design's steps, ``job`` (_SetJob) cancels it."""
         from ..machining.cycle import CycleOptions
         from ..machining.electrode_set import SetDesigner, set_id_for, write_set, write_stored_set
         from ..machining.program import blisk_program_steps
@@ -390,8 +505,13 @@ class TrajectoryPlannerNode(Node):
             plans, meta = found
             message = f"from the plan store: {meta.get('message', '')}"
             candidates, planning_time = meta.get("candidates", []), float(meta.get("planning_time_s", 0.0))
+            if detail is not None:
+                from ..machining.set_progress import SetProgress
+                detail(SetProgress(message=f"set {set_id} from the plan store").timed(1.0, 0.0), "stored")
         else:
             prepared = self._geometry(gid)
+            if job is not None:
+                job.check()                 # cancelled while the geometry was being prepared
             request_id = f"{gid[:8]}/{request.channel}/set"
 
             def progress(stage, fraction, message):
@@ -400,7 +520,11 @@ class TrajectoryPlannerNode(Node):
 
             cache = self.get_parameter("cache_dir").value or CACHE_ROOT
             designer = SetDesigner(prepared.geometry, prepared.field, options, set_options, cycle_options,
-                                   progress=progress, field_cache=(cache, gid))
+                                   progress=progress, field_cache=(cache, gid), detail=detail)
+            if job is not None:
+                job.attach(designer)
+            # a cancelled design raises SetDesignCancelled here, before anything is stored (the plans, the set
+            # and the program are kept only below, once the design is complete)
             result = designer.design(int(request.channel))
             meta = result.to_dict()
             meta["labels"] = [p.label for p in result.delivered.pieces] if result.delivered else []
