@@ -1,8 +1,11 @@
 """``make demo``: the whole product once, as a cell controller drives it over DDS.
 
 Starts the four nodes as separate processes (launch-free bring-up), then
-LoadGeometry (the built-in default blisk) -> PlanElectrodeSet (channel 0) ->
-ExecutePlan per electrode, with a monitor subscriber receiving the
+LoadGeometry (the built-in default blisk) -> the PlanElectrodeSet action
+(channel 0; its feedback printed as lines: one per candidate or piece change
+or 10 %) -> the ExecutePlan action per electrode (``--follow``: followed in
+real time with its feedback; by default the result as soon as the trajectory
+is sent, so the demo stays fast), with a monitor subscriber receiving the
 JointTrajectory; asks the interference_checker for the clearances along
 every electrode's whole cycle;
 prints a summary and writes ``out/demo/``: the plan export, axis curves
@@ -19,6 +22,7 @@ run finds the set in the plan store.
 """
 
 import argparse
+import math
 import os
 import pathlib
 import signal
@@ -108,6 +112,80 @@ def _call(node, srv_type, name, request, timeout, bringup):
     return future.result()
 
 
+def _action(node, action_type, name, goal, timeout, bringup, on_feedback=None):
+    """Send an action goal and wait for its result (every wait with a deadline, the nodes checked alive).
+
+    Returns (status, result). Interrupted (Ctrl-C), the goal is cancelled before the exception goes on.
+    """
+    from rclpy.action import ActionClient
+
+    client = ActionClient(node, action_type, name)
+    deadline = time.monotonic() + timeout
+
+    def wait(future, what):
+        while not future.done():
+            bringup.check_alive()
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"action {name}: {what} not within {timeout:.0f} s")
+            time.sleep(0.02)
+        return future.result()
+
+    try:
+        while not client.wait_for_server(timeout_sec=0.5):
+            bringup.check_alive()
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"action server {name} not available after {timeout:.0f} s")
+        handle = wait(client.send_goal_async(goal, feedback_callback=(
+            None if on_feedback is None else lambda m: on_feedback(m.feedback))), "goal response")
+        if not handle.accepted:
+            raise RuntimeError(f"action {name}: goal rejected (see the node's log)")
+        try:
+            response = wait(handle.get_result_async(), "result")
+        except KeyboardInterrupt:
+            cancel = handle.cancel_goal_async()
+            end = time.monotonic() + 5.0
+            while not cancel.done() and time.monotonic() < end:
+                time.sleep(0.02)
+            raise
+        return response.status, response.result
+    finally:
+        client.destroy()
+
+
+class SetFeedbackLines:
+    """PlanElectrodeSet feedback as lines: one per candidate or piece change, or 10 % advance."""
+
+    def __init__(self, stream=None):
+        self.stream = stream or sys.stdout
+        self.where, self.fraction, self.count = None, -1.0, 0
+
+    def __call__(self, fb):
+        where = (fb.candidate, fb.piece)
+        if where == self.where and fb.fraction < self.fraction + 0.1:
+            return
+        self.where, self.fraction = where, fb.fraction
+        self.count += 1
+        left = "time left ?" if math.isnan(fb.estimated_time_left) else f"time left ~{fb.estimated_time_left:.0f} s"
+        parts = [f"candidate {fb.candidate_index + 1}/{fb.candidate_count} {fb.candidate}" if fb.candidate else "",
+                 f"piece {fb.piece_index + 1}/{fb.piece_count} {fb.piece}" if fb.piece else "",
+                 f"step {fb.sizing_step} {fb.sizing_parameter}" if fb.sizing_parameter else ""]
+        print(f"    {100 * fb.fraction:5.1f} %  {fb.elapsed:6.1f} s  {left:<17} "
+              f"{', '.join(p for p in parts if p) or fb.message[:80]}", file=self.stream, flush=True)
+
+
+class FollowLines:
+    """ExecutePlan feedback as lines: one per phase change or 10 % of the trajectory."""
+
+    def __init__(self):
+        self.phase, self.fraction = None, -1.0
+
+    def __call__(self, fb):
+        if fb.phase == self.phase and fb.fraction < self.fraction + 0.1:
+            return
+        self.phase, self.fraction = fb.phase, fb.fraction
+        print(f"    {fb.executed_time:7.1f} of {fb.duration:.1f} s  {fb.phase} (channel {fb.channel})", flush=True)
+
+
 def _require(response, what):
     ok = response.success if hasattr(response, "success") else response.error_code.val == 0
     if not ok:
@@ -138,12 +216,14 @@ def _cycle_csv(path):
     return names, np.array([[float(v) for v in r[2:]] for r in rows[1:]]), [r[0] for r in rows[1:]]
 
 
-def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0):
+def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=False):
     import json
 
     import rclpy
+    from action_msgs.msg import GoalStatus
+    from edm_planner_msgs.action import ExecutePlan, PlanElectrodeSet
     from edm_planner_msgs.msg import AxisPoint, BliskGeometry
-    from edm_planner_msgs.srv import CheckInterference, ExecutePlan, LoadGeometry, PlanElectrodeSet
+    from edm_planner_msgs.srv import CheckInterference, LoadGeometry
     from rclpy.executors import SingleThreadedExecutor
     from trajectory_msgs.msg import JointTrajectory
 
@@ -179,9 +259,10 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0):
             print(f"    {s.name or 'default blisk'}: {s.blade_count} blades, id {geo.geometry_id[:12]}, "
                   f"min channel width {s.min_channel_width:.3f} mm; no electrode design in the file")
         with Step(f"PlanElectrodeSet: channel {channel}, the planner designs the electrode set"):
-            res = _call(node, PlanElectrodeSet, "plan_electrode_set",
-                        PlanElectrodeSet.Request(geometry_id=geo.geometry_id, channel=channel, write_export=True),
-                        set_timeout, bringup)
+            # the action: its feedback (candidate, piece, sizing step, percent, time left) printed as lines
+            _, res = _action(node, PlanElectrodeSet, "plan_electrode_set",
+                             PlanElectrodeSet.Goal(geometry_id=geo.geometry_id, channel=channel, write_export=True),
+                             set_timeout, bringup, SetFeedbackLines())
             if not res.plan_ids:
                 _require(res, "PlanElectrodeSet")
             for c in res.candidates:
@@ -197,9 +278,15 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0):
         for i, label in enumerate(res.electrode_labels):
             with Step(f"ExecutePlan: set {res.set_id}, electrode {i} ({label}): its whole cycle"):
                 before = len(received)
-                ex = _require(_call(node, ExecutePlan, "execute_plan",
-                                    ExecutePlan.Request(plan_id=res.set_id, channel=channel, dry_run=False,
-                                                        electrode=i), timeout, bringup), "ExecutePlan")
+                # the action; with --follow its feedback along the trajectory, in real time
+                status, ex = _action(node, ExecutePlan, "execute_plan",
+                                     ExecutePlan.Goal(plan_id=res.set_id, channel=channel, dry_run=False,
+                                                      electrode=i, follow=follow),
+                                     timeout + (3 * 3600.0 if follow else 0.0), bringup,
+                                     FollowLines() if follow else None)
+                _require(ex, "ExecutePlan")
+                if status != GoalStatus.STATUS_SUCCEEDED:
+                    raise RuntimeError(f"ExecutePlan ended with goal status {status}: {ex.message}")
                 deadline = time.monotonic() + 30.0
                 while len(received) == before:
                     if time.monotonic() > deadline:
@@ -293,6 +380,8 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description="edm_planner end-to-end demo (make demo)")
     parser.add_argument("--out", default="out/demo", help="output directory")
     parser.add_argument("--channel", type=int, default=0)
+    parser.add_argument("--follow", action="store_true",
+                        help="follow each electrode's trajectory in real time (ExecutePlan feedback; minutes)")
     args = parser.parse_args(argv)
     # Ctrl-C and kill stop the nodes too: raise KeyboardInterrupt here even when the demo was started
     # with SIGINT ignored (a background job of a non-interactive shell inherits SIG_IGN)
@@ -307,7 +396,7 @@ def main(argv=None):
     try:
         with Step(f"starting {', '.join(NODES)} (logs in {out / 'logs'})"):
             bringup.start()
-        run(out, args.channel, bringup)
+        run(out, args.channel, bringup, follow=args.follow)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         status = 130
