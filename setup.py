@@ -26,6 +26,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", sorted(glob("launch/*.launch.py"))),
     ] + [
         # config/ and its data sub-directories, as they are
         (f"share/{PACKAGE}/{d}", sorted(f for f in glob(f"{d}/*") if os.path.isfile(f)))

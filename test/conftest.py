@@ -1,9 +1,11 @@
 """Test configuration: loopback DDS and a ROS domain of this run's own."""
 
+import faulthandler
 import importlib
 import os
 import pathlib
 import sys
+import threading
 
 import pytest
 
@@ -17,6 +19,9 @@ WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
 if WORKER:
     os.environ["ROS_DOMAIN_ID"] = str((int(os.environ["ROS_DOMAIN_ID"]) - 1 + 50 * int(WORKER[2:])) % 100 + 1)
 os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
+# DDS on loopback UDP in this process and every child it starts, before any rclpy.init (edm_planner/nodes/dds.py:
+# Fast DDS's shared memory can hang a node started after one that was killed)
+importlib.import_module("edm_planner.nodes")
 # Compiled numba kernels in the user's cache: edm_planner names the directory in NUMBA_CACHE_DIR (one per
 # version of the kernel sources), so that processes started with another HOME (the demo's fresh user)
 # still find them.
@@ -36,6 +41,41 @@ def pytest_configure(config):
 #: out in collection order) a long file started last keeps one core busy alone at the end of the run
 LONG_FILES = ("test_demo.py", "test_electrode_set_node.py", "test_colcon_workspace.py", "test_plan_export.py",
               "test_blisk_program.py", "test_cycle_execution.py", "test_machining_cycle.py")
+
+
+#: seconds before a test's deadline at which the stacks of its children are printed (they are killed after)
+CHILD_REPORT_MARGIN = 20.0
+#: seconds after the deadline at which a test process stuck in C code (pytest-timeout's alarm cannot run while a
+#: C call holds the interpreter) prints every thread's stack from faulthandler's own thread and exits
+HARD_EXIT_MARGIN = 60.0
+
+
+def _deadline(item):
+    marker = item.get_closest_marker("timeout")
+    if marker is not None and marker.args:
+        return float(marker.args[0])
+    value = item.config.getini("timeout")
+    return float(value) if value else 0.0
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """Every test has a deadline (pytest-timeout); near it the children's stacks, past it a hard exit with stacks."""
+    from hang_report import report_children
+
+    deadline = _deadline(item)
+    timer = None
+    if deadline > 0:
+        timer = threading.Timer(max(deadline - CHILD_REPORT_MARGIN, 1.0), report_children)
+        timer.daemon = True
+        timer.start()
+        faulthandler.dump_traceback_later(deadline + HARD_EXIT_MARGIN, exit=True)
+    try:
+        yield
+    finally:
+        if timer is not None:
+            timer.cancel()
+            faulthandler.cancel_dump_traceback_later()
 
 
 def pytest_collection_modifyitems(config, items):

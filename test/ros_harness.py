@@ -14,7 +14,10 @@ import sys
 import threading
 import time
 
+import queue
+
 import rclpy
+from hang_report import register
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 
@@ -97,10 +100,11 @@ class NodeProcesses:
         cmd = [str(VENV_BIN / executable), *args]
         if params:
             cmd += ["--ros-args"] + [x for k, v in params.items() for x in ("-p", f"{k}:={v}")]
-        log = open(self.log_dir / f"{executable}.log", "a")     # a restarted node appends
-        self.procs[executable] = (subprocess.Popen(
+        path = self.log_dir / f"{executable}.log"
+        log = open(path, "a")     # a restarted node appends
+        self.procs[executable] = (register(subprocess.Popen(
             cmd, env=ros_environment(), stdout=log, stderr=subprocess.STDOUT,
-            start_new_session=True), log)
+            start_new_session=True), executable, path), log)
         return self.procs[executable][0]
 
     def log(self, executable):
@@ -122,3 +126,59 @@ class NodeProcesses:
                 proc.wait()
             log.close()
         return {name: self.procs[name][0].returncode for name in names}
+
+
+class OutputLines:
+    """A child's output read line by line in a thread, so that every wait on it has a deadline.
+
+    ``for line in proc.stdout`` blocks for ever when the child prints nothing; :meth:`wait_for` gives up at its
+    deadline with what was read so far.
+    """
+
+    def __init__(self, proc):
+        self.proc, self.lines, self._queue = proc, [], queue.Queue()
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+
+    def _read(self):
+        for line in self.proc.stdout:
+            self._queue.put(line)
+        self._queue.put(None)
+
+    def _take(self, timeout):
+        try:
+            line = self._queue.get(timeout=timeout)
+        except queue.Empty:
+            return False
+        if line is None:
+            self._queue.put(None)          # the end stays visible to later waits
+            return None
+        self.lines.append(line)
+        return True
+
+    def wait_for(self, text, timeout):
+        """Read until a line containing ``text``; TimeoutError (with the output so far) at the deadline or the end."""
+        deadline = time.monotonic() + timeout
+        while not any(text in line for line in self.lines):
+            left = deadline - time.monotonic()
+            got = self._take(max(left, 0.0)) if left > 0 else False
+            if got is None:
+                raise TimeoutError(f"the output ended (exit {self.proc.poll()}) without {text!r}:\n{self.text}")
+            if got is False:
+                raise TimeoutError(f"no {text!r} within {timeout:g} s; output so far:\n{self.text}")
+        return self.text
+
+    def rest(self, timeout):
+        """Everything until the end of the output; TimeoutError at the deadline."""
+        deadline = time.monotonic() + timeout
+        while True:
+            left = deadline - time.monotonic()
+            got = self._take(left) if left > 0 else False
+            if got is None:
+                return self.text
+            if got is False:
+                raise TimeoutError(f"the output did not end within {timeout:g} s; so far:\n{self.text}")
+
+    @property
+    def text(self):
+        return "".join(self.lines)

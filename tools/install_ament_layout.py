@@ -24,9 +24,10 @@ def main() -> int:
     share = prefix / "share" / PACKAGE
     share.mkdir(parents=True, exist_ok=True)
     shutil.copy2(root / "package.xml", share / "package.xml")
-    if (share / "config").exists():
-        shutil.rmtree(share / "config")
-    shutil.copytree(root / "config", share / "config")
+    for folder in ("config", "launch"):
+        if (share / folder).exists():
+            shutil.rmtree(share / folder)
+        shutil.copytree(root / folder, share / folder)
     lib = prefix / "lib" / PACKAGE
     if lib.exists():
         shutil.rmtree(lib)

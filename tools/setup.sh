@@ -56,7 +56,7 @@ if ! fresh msgs "$h" || [ ! -d "$VENV/share/edm_planner_msgs" ]; then
   stamp msgs "$h"
 fi
 
-h=$(hash_of setup.py setup.cfg package.xml resource/edm_planner tools/install_ament_layout.py $(find config -type f | sort))
+h=$(hash_of setup.py setup.cfg package.xml resource/edm_planner tools/install_ament_layout.py $(find config launch -type f | sort))
 if ! fresh pkg "$h"; then
   echo "setup: installing edm_planner (editable) in the ament layout"
   pip_quiet install --no-deps --no-build-isolation -e .

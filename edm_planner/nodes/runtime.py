@@ -1,6 +1,8 @@
 """Running a node as a process: the shared body of every console entry point."""
 
+import faulthandler
 import logging
+import signal
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
@@ -15,6 +17,7 @@ def spin_node(node_class, args=None):
         The process exit code (0).
     """
     logging.basicConfig(level=logging.INFO, format="[%(name)s] %(levelname)s: %(message)s")
+    enable_stack_dumps()
     rclpy.init(args=args)
     node = node_class()
     executor = MultiThreadedExecutor()
@@ -28,6 +31,12 @@ def spin_node(node_class, args=None):
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def enable_stack_dumps():
+    """``kill -USR1 <pid>`` prints every thread's Python stack to stderr (the node's log), even while the process
+    is stuck in C code (a DDS call): what a supervisor or a test's deadline reports of a node that does not answer."""
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
 
 
 def answer(node, service, fill, request, response):

@@ -1,0 +1,72 @@
+"""What a test that misses its deadline shows: the stacks of the child processes it started.
+
+pytest-timeout fails a test at its deadline (``timeout`` in setup.cfg) and
+prints every thread of the test process; a hang is as often in a child (a
+node stuck in DDS, a demo waiting on one). Children are registered here
+when started; shortly before the deadline :func:`report_children` prints,
+for each live one, its Python and native stacks (``py-spy dump``), or, when
+py-spy cannot attach, asks it for its Python stacks (``SIGUSR1``:
+faulthandler, which our entry points enable) and prints the end of its log.
+"""
+
+import os
+import pathlib
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+_lock = threading.Lock()
+#: pid -> (name, Popen, log path or None) of the children started by the current test process
+CHILDREN = {}
+
+
+def register(proc, name, log=None):
+    """Remember a child process (a ``subprocess.Popen``) for the hang report; returns ``proc``."""
+    with _lock:
+        CHILDREN[proc.pid] = (name, proc, pathlib.Path(log) if log else None)
+    return proc
+
+
+def _py_spy(pid, timeout=30.0):
+    exe = shutil.which("py-spy") or os.path.join(sys.prefix, "bin", "py-spy")
+    if not os.path.exists(exe):
+        return None
+    try:
+        run = subprocess.run([exe, "dump", "--native", "--pid", str(pid)], capture_output=True, text=True,
+                             timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return None
+    return run.stdout if run.returncode == 0 and run.stdout.strip() else None
+
+
+def report_children(out=None):
+    """Print the stacks of every registered child still running (and forget the ones that ended)."""
+    out = out or sys.stderr
+    with _lock:
+        live = [(pid, v) for pid, v in CHILDREN.items() if v[1].poll() is None]
+        for pid in [pid for pid, v in CHILDREN.items() if v[1].poll() is not None]:
+            del CHILDREN[pid]
+    for pid, (name, proc, log) in live:
+        print(f"\n===== deadline near: child {name} (pid {pid}) still running =====", file=out)
+        stacks = _py_spy(pid)
+        if stacks is not None:
+            print(stacks, file=out)
+            continue
+        try:
+            os.kill(pid, signal.SIGUSR1)           # faulthandler: the Python stacks into its log
+        except ProcessLookupError:
+            continue
+        time.sleep(1.0)
+        if log is not None and log.exists():
+            print(log.read_text(errors="replace")[-8000:], file=out)
+        else:
+            print("(py-spy could not attach; the child's stderr has its Python stacks)", file=out)
+    out.flush()
+
+
+def forget_all():
+    with _lock:
+        CHILDREN.clear()
