@@ -31,7 +31,7 @@ GAP, TOLERANCE = 0.1, 0.02
 MARGIN = GAP - TOLERANCE
 DESIGN = ElectrodeDesign(circumferential_reduction=0.03, radial_reduction=3.0, split="front_rear", split_overlap=1.0)
 #: a removal proof as RemovalReport.to_dict() writes it (figures made up; the store keeps them as they are)
-REMOVAL = {"meets_tolerance": True, "tolerance_mm": 0.02, "discharge_gap_mm": [0.1], "stock_max_mm": 0.04,
+REMOVAL = {"every_sample_within_tolerance": True, "tolerance_mm": 0.02, "discharge_gap_mm": [0.1], "stock_max_mm": 0.04,
            "overcut_max_mm": 0.0,
            "surfaces": {s: {"area_mm2": 100.0 + i, "stock_max_mm": 0.01 * (i + 1), "stock_mean_mm": 0.001 * (i + 1),
                             "area_fraction_above_tolerance": 0.001 * i, "overcut_max_mm": 0.0005 * i}

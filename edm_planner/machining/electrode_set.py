@@ -15,9 +15,16 @@ smallest radial reduction (least shroud stock) first, then the smallest h
 (the thickest electrode). Each piece's full cycle (approach, feed, copy
 processing, return, retract; :mod:`.cycle`) is built and certified, and the
 candidate's swept electrodes go through the material-removal simulation
-(:mod:`.removal`). A candidate is accepted when every wall has stock above
-the tolerance on at most ``max_area_above`` of its area and no overcut
-beyond the tolerance. Among the accepted candidates with the fewest
+(:mod:`.removal`). A candidate is accepted (:func:`acceptance`) when on
+every wall the area whose stock exceeds the EDM corner rounding by more than
+the tolerance (``area_fraction_beyond_inherent``) is at most
+``max_area_above`` of its area, and nothing is overcut beyond the tolerance.
+The corner rounding (what an ideal electrode leaves in the concave corners,
+radius = gap) is computed from the walls' own geometry
+(:func:`.removal.corner_rounding_stock`), not by this module's design code,
+so a fault of the design is never written off as inherent. The strict
+share against sharp corners (``area_fraction_above_tolerance``) is reported
+beside it, not accepted on. Among the accepted candidates with the fewest
 electrodes the thickest set (largest electrode volume) wins, then the
 shortest cycle. Every candidate tried is reported with why it was rejected.
 """
@@ -262,6 +269,7 @@ class SetDesigner:
         self.workers = int(workers or os.cpu_count() or 1)
         self._pool = None
         self._wall_samples = None
+        self._inherent = None            # the corner rounding at the wall samples (prove)
         self.t0 = None
         self._where, self._name = (0, 1, 0, 1), ""
         self._sizing = ""                # what the sizing step tries: start, radial, circumferential
@@ -432,16 +440,22 @@ class SetDesigner:
         return out
 
     def prove(self, candidate):
-        from .removal import simulate_removal
+        """The candidate's removal proof; the inherent stock is the corner rounding of the walls themselves.
 
-        ideal = self._designed(replace(self.base, split="none"), "main")[0]
+        The reference is computed from the blisk's wall geometry
+        (:func:`.removal.corner_rounding_stock`), independent of the design
+        code that made the candidates' electrodes.
+        """
+        from .removal import corner_rounding_stock, simulate_removal
+
         if self._wall_samples is None:                # the same walls for every candidate
             from .removal import wall_samples
             self._wall_samples = wall_samples(self.blisk, self.options.removal_spacing)
+            self._inherent = corner_rounding_stock(self.blisk, self._wall_samples, self.base.discharge_gap)
         pool = self._workers_pool()               # the sizing workers share out the wall samples
         report = simulate_removal(self.blisk, self.sweeps(candidate), self.base.discharge_gap,
                                   tolerance=self.options.tolerance, samples=self._wall_samples,
-                                  reference=[(ideal.mesh.vertices, ideal.mesh.faces, ideal.final_pose[None])],
+                                  inherent=self._inherent,
                                   executor=pool, parts=self.workers if pool is not None else 1)
         candidate.removal = report
         return report
@@ -591,19 +605,7 @@ class SetDesigner:
                                       for p in cand.pieces))
         self._report((index + 0.95) / count, f"{cand.name}: material-removal proof")
         report = self.prove(cand)
-        figures = removal_figures(report)
-        worst = max(report.surfaces.values(), key=lambda w: w.area_fraction_beyond_inherent)
-        if report.overcut_max > self.options.tolerance:
-            cand.status = "overcut"
-            cand.reason = f"overcut {report.overcut_max:.4f} mm, beyond the tolerance; {figures}"
-        elif worst.area_fraction_beyond_inherent > self.options.max_area_above:
-            cand.status = "stock left"
-            cand.reason = (f"{100 * worst.area_fraction_beyond_inherent:.2f} % of the {worst.surface} keeps stock "
-                           f"more than {self.options.tolerance:g} mm beyond the EDM corner rounding (at most "
-                           f"{100 * self.options.max_area_above:g} % allowed); {figures}")
-        else:
-            cand.status = "accepted"
-            cand.reason = f"machines the channel to {self.options.tolerance:g} mm; {figures}"
+        cand.status, cand.reason = acceptance(report, self.options)
 
 
 _WORKER = None
@@ -645,6 +647,30 @@ def _drain(reports):
         except (queue.Empty, OSError, ValueError):
             break
     return out
+
+
+def acceptance(report, options):
+    """(status, reason) of a proven candidate: "overcut", "stock left" or "accepted".
+
+    Accepted when nothing is overcut beyond the tolerance and on every wall
+    the area whose stock exceeds the inherent corner rounding by more than
+    the tolerance (``area_fraction_beyond_inherent``) is at most
+    ``options.max_area_above``. A report without an inherent stock (NaN) is
+    never accepted.
+    """
+    figures = removal_figures(report)
+    shares = {name: w.area_fraction_beyond_inherent for name, w in report.surfaces.items()}
+    if report.overcut_max > options.tolerance:
+        return "overcut", f"overcut {report.overcut_max:.4f} mm, beyond the tolerance; {figures}"
+    unknown = [name for name, v in shares.items() if not np.isfinite(v)]
+    if unknown:
+        return "stock left", f"no inherent stock to compare with on the {', '.join(unknown)}; {figures}"
+    worst = max(shares, key=shares.get)
+    if shares[worst] > options.max_area_above:
+        return "stock left", (f"{100 * shares[worst]:.2f} % of the {worst} keeps stock more than "
+                              f"{options.tolerance:g} mm beyond the EDM corner rounding (at most "
+                              f"{100 * options.max_area_above:g} % allowed); {figures}")
+    return "accepted", f"machines the channel to {options.tolerance:g} mm; {figures}"
 
 
 def removal_figures(report):
