@@ -61,7 +61,7 @@ def cell(tmp_path_factory, field_cache):
         ros.add(GeometryLoaderNode(context=ros.context))
         ros.add(TrajectoryPlannerNode(context=ros.context, parameter_overrides=[
             Parameter("cache_dir", value=field_cache), Parameter("plan_store", value=str(store)),
-            Parameter("unknown_geometry_wait", value=1.0)]))
+            Parameter("unknown_geometry_wait", value=1.0), Parameter("set_wait", value=1.0)]))
         ros.add(AxisBridgeNode(context=ros.context, parameter_overrides=[
             Parameter("plan_store", value=str(store)), Parameter("joint_states_topic", value=""),
             Parameter("plan_wait", value=1.0)]))
@@ -144,6 +144,10 @@ def test_cancel_stops_the_design_promptly_and_an_equal_goal_designs_again(cell):
     # one design at a time: a second goal meanwhile is rejected
     other = cell["actions"].send(PlanElectrodeSetAction, SET, set_goal(channel=2, max_electrodes=1))
     assert not other.accepted, "a second set goal must be rejected while a set is being designed"
+    # and a service call meanwhile waits set_wait (1 s here), then is told so, instead of waiting for ever
+    busy = cell["ros"].call(cell["client"], PlanElectrodeSet, SET, set_request(set_goal(channel=2, max_electrodes=1)),
+                            timeout=60)
+    assert busy.error_code.val == ErrorCode.TIMEOUT and "set_wait" in busy.message, busy.message
     t0 = time.monotonic()
     answer = g.cancel()
     assert len(answer.goals_canceling) == 1
@@ -151,7 +155,9 @@ def test_cancel_stops_the_design_promptly_and_an_equal_goal_designs_again(cell):
     latency = time.monotonic() - t0
     print(f"set design cancel latency {latency:.2f} s")
     assert status == GoalStatus.STATUS_CANCELED, f"status {status}: {result.message}"
-    assert latency < 15.0, f"the design took {latency:.1f} s to stop"
+    # a deadline, not a speed target: the design stops at its next step (a plan-search step, a certification),
+    # 1.1 s on an idle machine, 16.6 s seen with both cores loaded; a design not stopped would run for minutes
+    assert latency < 60.0, f"the design took {latency:.1f} s to stop"
     assert "cancelled" in result.message and not result.plan_ids and not result.candidates
     assert not multiprocessing.active_children(), "a sizing worker process outlived the cancel"
     store = PlanStore(str(cell["store"]))

@@ -21,7 +21,9 @@ def nodes_in_process():
     import os
     import threading
 
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    from .dds import loopback_unless_told
+
+    loopback_unless_told()
     os.environ.setdefault("ROS_DOMAIN_ID", str(101 - os.getpid() % 50))
     import rclpy
     from rclpy.context import Context

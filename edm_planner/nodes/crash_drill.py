@@ -320,8 +320,7 @@ def main(argv=None):
     args = p.parse_args(argv)
     from . import dds
 
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")    # loopback, whatever the shell says
-    setup = dds.use_loopback_udp()
+    setup = dds.loopback_unless_told()
     if args.dds == "stock":
         # undo what importing edm_planner.nodes did (before any rclpy.init): this process and its children on
         # rmw_fastrtps's own LOCALHOST set-up

@@ -100,3 +100,11 @@ def use_loopback_udp(environ=None):
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SYSTEM_DEFAULT"
     env.pop("ROS_LOCALHOST_ONLY", None)
     return "loopback-udp"
+
+
+def loopback_unless_told(environ=None):
+    """Our programs (soak, benches, drills) keep DDS on this machine unless the caller chose a range: LOCALHOST by
+    default, then :func:`use_loopback_udp`."""
+    env = os.environ if environ is None else environ
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    return use_loopback_udp(env)

@@ -33,6 +33,10 @@ import time
 
 import numpy as np
 
+from .dds import use_loopback_udp
+from .geometry_loader import config_directory
+from .runtime import enable_stack_dumps
+
 NODES = ("geometry_loader", "interference_checker", "trajectory_planner", "axis_bridge")
 TRAJECTORY_TOPIC = "/edm_controller/joint_trajectory"
 
@@ -49,10 +53,9 @@ class Bringup:
     def start(self, names=NODES):
         bin_dir = pathlib.Path(sys.prefix) / "bin"
         for name in names:
-            cmd = [str(bin_dir / name)]
-            extra = self.params.get(name, {})
-            if extra:
-                cmd += ["--ros-args"] + [x for k, v in extra.items() for x in ("-p", f"{k}:={v}")]
+            # the cell's parameters file (what launch/edm_cell.launch.py passes), then the demo's own
+            cmd = [str(bin_dir / name), "--ros-args", "--params-file", str(config_directory() / "edm_cell.yaml")]
+            cmd += [x for k, v in self.params.get(name, {}).items() for x in ("-p", f"{k}:={v}")]
             log = open(self.log_dir / f"{name}.log", "w")
             self.procs[name] = (subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=os.environ.copy(),
                                                  start_new_session=True), log)
@@ -388,6 +391,8 @@ def main(argv=None):
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, signal.default_int_handler)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    use_loopback_udp()                      # again: the line above undid what importing edm_planner.nodes did
+    enable_stack_dumps()
     os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 80))
     out = pathlib.Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)

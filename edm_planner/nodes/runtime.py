@@ -8,6 +8,10 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
 
+#: threads of a node process's executor
+EXECUTOR_THREADS = 8
+
+
 def spin_node(node_class, args=None):
     """Init rclpy, spin one node on a MultiThreadedExecutor until Ctrl-C or shutdown, clean up.
 
@@ -20,7 +24,9 @@ def spin_node(node_class, args=None):
     enable_stack_dumps()
     rclpy.init(args=args)
     node = node_class()
-    executor = MultiThreadedExecutor()
+    # threads enough that long work (a set design, a followed trajectory, a plan) never holds up a cancel, the
+    # latched geometry or a short service call behind it (the default is one thread per core: 2 here)
+    executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS)
     executor.add_node(node)
     try:
         executor.spin()

@@ -158,9 +158,10 @@ def run_soak(work_dir, n_check=1000, n_plan=100, n_distinct=50, sample_every=100
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.node import Node
 
+    from .dds import loopback_unless_told
     from .demo import Bringup
 
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    loopback_unless_told()
     os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 30))
     os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
     work = pathlib.Path(work_dir)

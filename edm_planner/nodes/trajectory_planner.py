@@ -27,6 +27,9 @@ geometry_wait : float
     How long a request waits for a geometry still being prepared [s].
 unknown_geometry_wait : float
     How long a request for a geometry id not seen yet waits for it on ``geometry`` [s].
+set_wait : float
+    How long a PlanElectrodeSet service call waits while another set is being designed (one at a time)
+    before it is answered TIMEOUT [s]; an action goal meanwhile is rejected at once.
 plan_store : str
     Directory of the persistent plan store ('' : ~/.local/share/edm_planner/plan_store, 'none' : off).
     A request equal to an earlier one (same geometry content, channel, electrode, settings) is answered
@@ -304,6 +307,7 @@ class TrajectoryPlannerNode(Node):
         self.declare_parameter("geometry_wait", 120.0)
         self.declare_parameter("unknown_geometry_wait", 5.0)
         self.declare_parameter("frame_id", "blisk")
+        self.declare_parameter("set_wait", 600.0)
         self.store, self.store_error = declare_plan_store(self)
         self.geometries = {}
         self.latest = None
@@ -432,8 +436,19 @@ class TrajectoryPlannerNode(Node):
 
     # -- electrode sets ---------------------------------------------------------------------
     def on_plan_set(self, request, response):
-        with self._set_lock:                # one set design at a time: waits for an action goal's design
+        # one set design at a time: a call waits for the design under way, but not for ever
+        wait = float(self.get_parameter("set_wait").value)
+        if not self._set_lock.acquire(timeout=max(wait, 0.0)):
+            response.success = False
+            response.error_code = error_code(ErrorCode.TIMEOUT)
+            response.message = (f"another electrode set is still being designed after {wait:g} s (one at a time, "
+                                f"parameter set_wait): call again later, or use the plan_electrode_set action")
+            self.get_logger().warning(f"PlanElectrodeSet refused (TIMEOUT): {response.message}")
+            return response
+        try:
             return answer(self, "PlanElectrodeSet", self._plan_set, request, response)
+        finally:
+            self._set_lock.release()
 
     def on_set_goal(self, goal):
         """Accept a PlanElectrodeSet goal unless a set is being designed (its lock is held until the goal ends)."""
