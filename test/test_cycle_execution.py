@@ -54,21 +54,24 @@ def limits(machine):
             np.array([x.jerk_max for x in lim]))
 
 
-def check_cycle_trajectory(t, p, v, a, machine, expected, phases=None):
+def check_cycle_trajectory(t, p, v, a, machine, expected, phases=None, atol=1e-9):
     """What every sent cycle must satisfy: the feed's checks (test_timing), at rest at every leg joint.
 
-    ``expected``: the points (the cycle's samples, and the middle of any two-sample leg).
+    ``expected``: the points, or NaN rows where any point of the timed profile will do (points added between
+    the knots, test_trajectory_consistency checks them); ``atol``: how close [mm, rad].
     """
     vmax, amax, jmax = limits(machine)
     assert p.shape == v.shape == a.shape == (len(t), 5)
     assert t[0] == 0.0 and np.all(np.diff(t) > 0)
     assert np.all(np.abs(v) <= vmax * (1 + 1e-6)) and np.all(np.abs(a) <= amax * (1 + 1e-6))
-    # between the points, as the controller interpolates quintics through (p, v, a): within every limit
+    # between the points, as the controller interpolates quintics through (p, v, a): within every limit (to
+    # 1e-5 for the jerk: a knot, where the jerk switches, lies up to 0.5 ns from the point on a whole
+    # nanosecond that stands for it; test_trajectory_consistency measures 1.4e-6)
     qv, qa, qj = quintic_peaks(t, p, v, a, n=33)
-    assert np.all(qv <= vmax * (1 + 1e-6)) and np.all(qa <= amax * (1 + 1e-6)) and np.all(qj <= jmax * (1 + 1e-6))
-    # the points as expected (1e-9: toppra's spline evaluated at its knots)
+    assert np.all(qv <= vmax * (1 + 1e-6)) and np.all(qa <= amax * (1 + 1e-6)) and np.all(qj <= jmax * (1 + 1e-5))
     assert len(p) == len(expected)
-    np.testing.assert_allclose(p, expected, atol=1e-9)
+    known = ~np.isnan(expected).any(axis=1)
+    np.testing.assert_allclose(p[known], expected[known], atol=atol)
     np.testing.assert_array_equal(v[[0, -1]], 0.0)
     np.testing.assert_array_equal(a[[0, -1]], 0.0)
     if phases is not None:
@@ -90,16 +93,27 @@ def test_the_cycle_is_timed_leg_by_leg_within_every_limit(rear, machine):
     assert [m.phase for m in arrays.phases] == [leg.phase for leg in cycle.legs]
     # the points are the cycle's samples in order, the rest sample shared by two legs once; a two-sample
     # leg (a short straight move) has its chord's middle between them
+    # (points of the timed profile between them, sample_index -1, where the trapezoid rule needs them)
     si = arrays.timed.sample_index
     np.testing.assert_array_equal(si[si >= 0], np.arange(len(cycle.samples)))
-    expected = arrays.positions.copy()
+    expected = np.full_like(arrays.positions, np.nan)
     expected[si >= 0] = cycle.samples
-    for i in np.flatnonzero(si < 0):
-        expected[i] = 0.5 * (expected[i - 1] + expected[i + 1])
     starts = np.flatnonzero(si >= 0)[[a for _, _, a, _ in cycle.leg_ranges]]
     assert [m.index for m in arrays.phases] == list(starts)
+    # the samples to 1e-8: on whole nanoseconds, a sample's point is the profile's within its speed x 0.5 ns
     check_cycle_trajectory(arrays.times, arrays.positions, arrays.velocities, arrays.accelerations, machine,
-                           expected, [m.index for m in arrays.phases])
+                           expected, [m.index for m in arrays.phases], atol=1e-8)
+    # a two-sample leg (a short straight move): its chord's middle, the knot between its two quintics, is
+    # a point too, and the points between stay on the chord
+    for (_, _, first, last), leg in zip(cycle.leg_ranges, cycle.legs):
+        if len(leg.samples) == 2:
+            i, j = np.flatnonzero(si == first)[0], np.flatnonzero(si == last)[0]
+            q0, q1 = leg.samples
+            d = (q1 - q0) / np.linalg.norm(q1 - q0)
+            rel = arrays.positions[i:j + 1] - q0
+            assert np.abs(rel - (rel @ d)[:, None] * d).max() <= 1e-12
+            assert np.abs(arrays.positions[i:j + 1] - 0.5 * (q0 + q1)).sum(axis=1).min() <= 1e-8
+            assert j - i + 1 >= 20
     # the home point first (further out than the feed's start, by up to the approach distance), the
     # machining pose reached
     np.testing.assert_allclose(arrays.positions[0], cycle.legs[0].samples[0], atol=1e-9)
@@ -109,13 +123,18 @@ def test_the_cycle_is_timed_leg_by_leg_within_every_limit(rear, machine):
     process = [m for m in arrays.phases if m.phase == "process"][0]
     assert si[process.index] == dict((p, a) for p, a, _ in cycle.phase_ranges)["process"]
     np.testing.assert_allclose(arrays.positions[process.index], plan.samples[-1], atol=1e-9)
-    # the feed leg is the certified feed: the same points as the feed-only trajectory, slower only where it
-    # comes to full rest at its ends
+    # the feed leg is the certified feed: the same samples as the feed-only trajectory (which needs no point
+    # between them: its segments agree by the trapezoid rule as they are), slower only where it comes to full
+    # rest at its ends, where the rest quintics get points between the samples
     feed = [m for m in arrays.phases if m.phase == "feed"][0]
     only = plan_trajectory(plan.samples, plan.axis_names, machine, final_pose=plan.final_pose)
     n = len(only.times)
-    np.testing.assert_allclose(arrays.positions[feed.index:feed.index + n], only.positions, atol=1e-12)
-    feed_time = arrays.times[feed.index + n - 1] - arrays.times[feed.index]
+    assert np.all(only.timed.sample_index >= 0)
+    first = dict((p, a) for p, a, _ in cycle.phase_ranges)["feed"]
+    in_feed = np.flatnonzero((si >= first) & (si < first + n))
+    assert in_feed[0] == feed.index and len(in_feed) == n
+    np.testing.assert_allclose(arrays.positions[in_feed], only.positions, atol=1e-8)
+    feed_time = arrays.times[in_feed[-1]] - arrays.times[feed.index]
     assert only.duration <= feed_time <= 1.2 * only.duration
     # the phase times: in order, the cycle takes the sum of its legs
     times = [m.time for m in arrays.phases]
@@ -345,12 +364,20 @@ def test_execute_a_blisk_program_electrode_through_its_channels(bridge):
     starts = [int(np.searchsorted(t, res.phase_start_times[i] - 1e-9)) for i in idx]
     assert starts[0] == n - 1
     index_len = starts[1] - starts[0] - (n - 1)
-    assert index_len == math.ceil(g.blisk.pitch / 0.0005)
+    # the turn's samples (0.0005 rad apart), and points of its profile where it leaves and reaches its rests
+    steps = math.ceil(g.blisk.pitch / 0.0005)
+    assert steps < index_len <= steps + 64
     expected = [single.positions]
+    others = [j for j in range(5) if j != ia]
     for k in (1, 2):
         a0 = single.positions[-1, ia] + (k - 1) * g.blisk.pitch
-        turn = np.repeat(single.positions[-1:], index_len, axis=0)
-        turn[:, ia] = np.linspace(a0, a0 + g.blisk.pitch, index_len + 1)[1:]
+        turn = p[starts[k - 1] + 1:starts[k - 1] + 1 + index_len]
+        np.testing.assert_allclose(turn[:, others], np.repeat(single.positions[-1:, others], index_len, axis=0),
+                                   atol=1e-12)
+        assert np.all(np.diff(turn[:, ia]) > 0) and turn[-1, ia] == pytest.approx(a0 + g.blisk.pitch, abs=1e-12)
+        grid = np.linspace(a0, a0 + g.blisk.pitch, steps + 1)[1:]
+        assert np.abs(turn[:, ia][:, None] - grid[None]).min(axis=0).max() <= 1e-8
+        turn = np.full((index_len, 5), np.nan)            # (checked here)
         shifted = single.positions[1:].copy()
         shifted[:, ia] += k * g.blisk.pitch
         expected += [turn, shifted]

@@ -8,7 +8,9 @@ machine joint coordinates (direction and offset of ``config/machine.yaml``), one
 per machine axis in the machine file's order: ``X Y Z C`` (4 axes, the channel
 indexed before the program), ``X Y Z A C`` or ``X Y Z A C B``.
 The first block positions the machine at the plan's start pose outside the
-blisk (``G00``); every further block is one certified sample (``G01``).
+blisk (``G00``); every further block is one point of the timed trajectory
+(``G01``): a certified sample, or a point of the timed profile between two
+samples where the timing adds one (at a leg's rest quintics, on short legs).
 
 A machining cycle marks each leg's start with a comment line
 ``(PHASE <phase> CHANNEL <k> : <what the leg does>)`` before its first motion

@@ -51,12 +51,22 @@ class TimingOptions:
         the next; those switches are jerk, which toppra does not bound. A moving minimum then a
         moving mean (never faster than toppra at any point) cut the jerk so that, on the channel-3
         plan, the stretch the jerk limits need falls from 2.06 to 1.31 (15.4 s -> 10.6 s).
+    consistency : float
+        How well neighbouring points' p, v and a must agree by the trapezoid rule, as a fraction of the leg's
+        peak velocity and acceleration per axis: ``|dp/dt - (v0 + v1)/2| <= consistency * v_peak`` and
+        ``|dv/dt - (a0 + a1)/2| <= consistency * a_peak`` on every segment. The timing adds points on its
+        profile until this holds (:func:`edm_planner.machine.trajectory.resample`); ``inf``: points only
+        where the profile has knots. The profile and the controller's quintics do not change either way.
+    max_subdivision : int
+        Most pieces one segment of the profile is cut into (bounds the point count whatever the profile).
     """
 
     rotary_lever: float = 100.0
     limit_fraction: float = 0.999
     limit_tolerance: float = 1e-9
     smoothing_window: int = 9
+    consistency: float = 0.01
+    max_subdivision: int = 64
 
     def __post_init__(self):
         if not (np.isfinite(self.rotary_lever) and self.rotary_lever > 0):
@@ -65,6 +75,10 @@ class TimingOptions:
             raise ValueError(f"limit_fraction must be in (0, 1], got {self.limit_fraction!r}")
         if int(self.smoothing_window) != self.smoothing_window or self.smoothing_window < 1:
             raise ValueError(f"smoothing_window must be a positive integer, got {self.smoothing_window!r}")
+        if not self.consistency > 0:
+            raise ValueError(f"consistency must be positive (inf: no points added), got {self.consistency!r}")
+        if int(self.max_subdivision) != self.max_subdivision or self.max_subdivision < 1:
+            raise ValueError(f"max_subdivision must be a positive integer, got {self.max_subdivision!r}")
 
 
 def smooth_profile(x, window):

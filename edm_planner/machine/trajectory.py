@@ -15,6 +15,13 @@ curve through a reversal would round it off. Each leg is timed on its own
 acceleration zero, so the rest sample shared by two legs is the same point
 for both and appears once), and the legs are concatenated
 (:func:`concatenate_legs`) with :class:`PhaseMark` s at every leg start.
+
+Every timed plan and leg leaves through :func:`resample`: where its knots are too
+far apart for their positions, velocities and accelerations to agree by the
+trapezoid rule (the rest quintics at a leg's ends, the short legs of the
+process), points of the same profile are added between them, each with the
+profile's velocity and acceleration at its instant, so that what a controller
+or a check integrates between points is the motion that was timed.
 """
 
 from dataclasses import dataclass, field, replace
@@ -217,6 +224,9 @@ class PhaseMark:
 def plan_trajectory(samples, axis_names, machine, options=TimingOptions(), final_pose=None):
     """Time a certified axis path on a machine and express it in joint coordinates.
 
+    The points are the samples and, where the samples are too far apart for their p, v and a to agree by
+    the trapezoid rule (``options.consistency``), points of the timed profile between them (:func:`resample`).
+
     Parameters
     ----------
     samples : (N, k) float
@@ -240,6 +250,12 @@ def plan_trajectory(samples, axis_names, machine, options=TimingOptions(), final
         INVALID_REQUEST (plan axes not the machine's, malformed samples), INFEASIBLE (travel or
         limit violation, with axis and time).
     """
+    arrays = _plan_arrays(samples, axis_names, machine, options, final_pose)
+    return resample(arrays, machine.limits_for(arrays.axis_names), options)
+
+
+def _plan_arrays(samples, axis_names, machine, options, final_pose):
+    """:func:`plan_trajectory` with a point at every sample and nowhere else (the knots of its profile)."""
     order = machine.joint_order(axis_names)       # INVALID_REQUEST unless the plan's axes are the machine's
     q, residual = machine_axis_values(samples, axis_names, final_pose, machine)
     axis_names = tuple(axis_names[i] for i in order)
@@ -365,6 +381,99 @@ def _rest_at_ends(arrays, limits, options):
     return replace(arrays, times=times, velocities=vel, accelerations=acc, timed=timed)
 
 
+def _hermite(p0, v0, a0, c3, c4, c5, x):
+    """Position, velocity and acceleration of the quintic ``p0 + v0 x + a0/2 x^2 + c3 x^3 + c4 x^4 + c5 x^5``."""
+    pos = p0 + x * (v0 + x * (a0 / 2 + x * (c3 + x * (c4 + x * c5))))
+    vel = v0 + x * (a0 + x * (3 * c3 + x * (4 * c4 + x * 5 * c5)))
+    acc = a0 + x * (6 * c3 + x * (12 * c4 + x * 20 * c5))
+    return pos, vel, acc
+
+
+def resample(arrays, limits, options=TimingOptions()):
+    """Points of the timed profile added between the knots until neighbouring points' p, v and a agree.
+
+    The timed profile of a plan or a leg is piecewise polynomial with its knots at the points: toppra's C2
+    cubic spline inside, and at a leg's ends the quintics that bring the acceleration to rest
+    (:func:`_rest_at_ends`). Each piece is exactly the quintic a controller puts through its two points'
+    (p, v, a) (joint_trajectory_controller's quintic Hermite; a cubic is one), so a point added at time t
+    carries the profile's p, v and a at t, and the controller's spline through all the points is the same
+    spline: the motion, its peaks and the limits verified on it do not change. The profile is C2 everywhere:
+    only the jerk switches, at the knots, which stay points, so no point needs one-sided values.
+
+    What the points add is agreement by the trapezoid rule, for a controller or a check that integrates
+    between points: on a piece of length h cut into equal parts,
+    ``|dp/h - (v0 + v1)/2| <= h^2/12 max|jerk|`` and ``|dv/h - (a0 + a1)/2| <= h^2/12 max|snap|``; each
+    segment is cut into the fewest parts (at most ``options.max_subdivision``) that bring both below
+    ``options.consistency`` times the leg's peak velocity and acceleration of each axis (its profile's, at
+    least 1e-6 of the axis' limit, so an axis at rest asks for nothing).
+
+    Parameters
+    ----------
+    arrays : JointTrajectoryArrays
+        One plan or one leg, its points at the knots of its profile.
+    limits : sequence of AxisLimits
+        In the order of ``arrays.axis_names``.
+    options : TimingOptions
+
+    Returns
+    -------
+    JointTrajectoryArrays
+        Points added between the knots; ``timed`` likewise (``sample_index`` -1 at the added points). When
+        points are added, every time is a whole nanosecond (what the message carries) and every point the
+        profile's state at that time: a knot lies on the profile within its speed x 0.5 ns of its sample, the
+        first and the last point (the rests) are the knots bit for bit. Nothing to add: ``arrays`` as it is.
+    """
+    eps = float(options.consistency)
+    t = arrays.times
+    if not np.isfinite(eps) or len(t) < 2:
+        return arrays
+    vmax = np.array([lim.velocity_max for lim in limits])
+    amax = np.array([lim.acceleration_max for lim in limits])
+    v_ref = np.maximum(arrays.timed.peak_velocity, 1e-6 * vmax)
+    a_ref = np.maximum(arrays.timed.peak_acceleration, 1e-6 * amax)
+    p, v, a = arrays.positions, arrays.velocities, arrays.accelerations
+    c3, c4, c5, T = _quintics(t[:-1, None], t[1:, None], p[:-1], v[:-1], a[:-1], p[1:], v[1:], a[1:])
+    # largest |jerk| (a quadratic: ends and vertex) and |snap| (linear: ends) of each piece
+    vertex = np.clip(-c4 / np.where(c5 == 0, np.inf, 5 * c5), 0.0, T)
+    jerk = np.max(np.abs([6 * c3 + 24 * c4 * x + 60 * c5 * x ** 2 for x in (0.0, T, vertex)]), axis=0)
+    snap = np.maximum(np.abs(24 * c4), np.abs(24 * c4 + 120 * c5 * T))
+    need = np.maximum(T * np.sqrt(jerk / (12 * eps * v_ref)), T * np.sqrt(snap / (12 * eps * a_ref)))
+    parts = np.clip(np.ceil(need.max(axis=1) * (1 + 1e-9)), 1, options.max_subdivision).astype(int)
+    if np.all(parts == 1):
+        return arrays
+    seg = np.repeat(np.arange(len(T)), parts - 1)                 # the piece each added point lies on
+    k = np.arange(len(seg)) - np.repeat(np.cumsum(parts - 1) - (parts - 1), parts - 1) + 1
+    knot = np.arange(len(t)) + np.concatenate([[0], np.cumsum(parts - 1)])
+    times = np.empty(len(t) + len(seg))
+    times[knot] = t
+    times[np.setdiff1d(np.arange(len(times)), knot)] = t[seg] + k / parts[seg] * T[seg, 0]
+    # time_from_start goes out in whole nanoseconds (builtin_interfaces/Duration). On pieces of a few
+    # milliseconds a stamp rounded by half a nanosecond would bend the controller's quintic by a few 1e-6 of
+    # the acceleration limit, so every point is put on a whole nanosecond and carries the profile's state
+    # at that instant (a knot moves along the profile by at most its speed x 0.5 ns); the rest at the end
+    # stays as it is (the profile is flat there: jerk x (0.5 ns)^3 / 6).
+    times = np.round(times * 1e9) / 1e9
+    if not np.all(np.diff(times) > 0):
+        raise EdmError(ErrorCode.INTERNAL, "resampled time_from_start is not strictly increasing")
+    piece = np.clip(np.searchsorted(t, times, side="right") - 1, 0, len(T) - 1)
+    x = (times - t[piece])[:, None]
+
+    def fill(pos, vel, acc):
+        q3, q4, q5, _ = _quintics(t[:-1, None], t[1:, None], pos[:-1], vel[:-1], acc[:-1], pos[1:], vel[1:], acc[1:])
+        out = _hermite(pos[piece], vel[piece], acc[piece], q3[piece], q4[piece], q5[piece], x)
+        for y, z in zip(out, (pos, vel, acc)):
+            y[0], y[-1] = z[0], z[-1]
+        return out
+
+    pos, vel, acc = fill(p, v, a)
+    timed = arrays.timed
+    tpos, tvel, tacc = fill(timed.positions, timed.velocities, timed.accelerations)
+    index = np.full(len(times), -1)
+    index[knot] = timed.sample_index
+    timed = replace(timed, times=times.copy(), positions=tpos, velocities=tvel, accelerations=tacc, sample_index=index)
+    return replace(arrays, times=times, positions=pos, velocities=vel, accelerations=acc, timed=timed)
+
+
 def time_leg(samples, axis_names, machine, options=TimingOptions(), final_pose=None):
     """One rest-to-rest leg timed as :func:`plan_trajectory` does, then brought to full rest at both ends.
 
@@ -373,7 +482,9 @@ def time_leg(samples, axis_names, machine, options=TimingOptions(), final_pose=N
     JointTrajectoryArrays
         Velocity and acceleration zero at the first and the last point; every limit verified, also on the
         quintics the controller runs through the end points. A two-sample leg (a short straight move) gets
-        its chord's middle as a third point (``timed.sample_index`` -1 there).
+        its chord's middle as a third point (``timed.sample_index`` -1 there). Then points of the profile
+        between the knots wherever the trapezoid rule needs them (:func:`resample`, ``sample_index`` -1): the
+        end segments, whose quintics bring the acceleration to rest, and every segment of a short leg.
     """
     samples = np.asarray(samples, dtype=np.float64)
     inserted = len(samples) == 2 and not np.array_equal(samples[0], samples[1])
@@ -381,10 +492,11 @@ def time_leg(samples, axis_names, machine, options=TimingOptions(), final_pose=N
         # toppra needs a grid point between two rests (else the speed is zero everywhere): the chord's middle,
         # a point of the certified straight move; it is no plan sample (sample_index -1)
         samples = np.vstack([samples[0], 0.5 * (samples[0] + samples[1]), samples[1]])
-    arrays = plan_trajectory(samples, axis_names, machine, options, final_pose=final_pose)
+    arrays = _plan_arrays(samples, axis_names, machine, options, final_pose)
     if inserted:
         arrays = replace(arrays, timed=replace(arrays.timed, sample_index=np.array([0, -1, 1])))
-    return _rest_at_ends(arrays, machine.limits_for(arrays.axis_names), options)
+    limits = machine.limits_for(arrays.axis_names)
+    return resample(_rest_at_ends(arrays, limits, options), limits, options)
 
 
 def shift_joint(arrays, axis, delta, machine):
