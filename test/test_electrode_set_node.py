@@ -35,7 +35,7 @@ def nodes(tmp_path_factory, field_cache):
         client = ros.add(Node("set_client", context=ros.context))
         load = ros.call(client, LoadGeometry, "load_geometry",
                         LoadGeometry.Request(path=str(CONFIG / "default_blisk.yaml")), timeout=300)
-        assert load.success, load.message
+        assert load.success, f"the default blisk loads: {load.message}"
         yield ros, client, load.geometry_id, store, procs
     finally:
         if ros is not None:
@@ -51,51 +51,100 @@ def plan_set(nodes, timeout=1800, **fields):
 
 def test_one_electrode_is_not_enough_and_the_answer_says_why(nodes):
     res = plan_set(nodes, channel=0, max_electrodes=1)
-    assert not res.success
-    assert res.error_code.val == ErrorCode.INFEASIBLE
-    assert [c.name for c in res.candidates] == ["one electrode"]
+    assert not res.success and res.error_code.val == ErrorCode.INFEASIBLE, \
+        f"with one electrode allowed the default blisk's channel cannot be machined: {res.message}"
+    assert [c.name for c in res.candidates] == ["one electrode"], "only the one-electrode candidate is tried"
     (c,) = res.candidates
-    assert c.status == "infeasible" and "no certified path" in c.reason
-    assert "one electrode: infeasible" in res.message
-    assert not res.plan_ids and res.set_id
+    assert c.status == "infeasible" and "no certified path" in c.reason, \
+        f"the single electrode has no certified path, and the answer says so: {c.status}: {c.reason}"
+    assert "one electrode: infeasible" in res.message, f"the message names the candidate and why: {res.message}"
+    assert not res.plan_ids and res.set_id, "no plans are delivered, the request still has its set id"
 
 
 def test_bad_requests(nodes):
     res = plan_set(nodes, channel=60)
-    assert res.error_code.val == ErrorCode.INVALID_REQUEST and "channel" in res.message
+    assert res.error_code.val == ErrorCode.INVALID_REQUEST and "channel" in res.message, \
+        f"channel 60 of a 60-blade blisk is refused, naming the channel: {res.message}"
     res = plan_set(nodes, channel=0, geometry_id="f" * 64, timeout=300)
-    assert res.error_code.val == ErrorCode.UNKNOWN_ID
+    assert res.error_code.val == ErrorCode.UNKNOWN_ID, f"an unknown geometry id is UNKNOWN_ID: {res.message}"
     res = plan_set(nodes, channel=0, tolerance=0.2)            # not below the 0.1 mm gap
-    assert res.error_code.val == ErrorCode.INVALID_REQUEST and "tolerance" in res.message
+    assert res.error_code.val == ErrorCode.INVALID_REQUEST and "tolerance" in res.message, \
+        f"a tolerance not below the discharge gap is refused, naming the tolerance: {res.message}"
+
+
+#: the default blisk's set as measured (issue 23, with the corner rounding computed from the walls): front/rear
+#: chosen; share beyond the rounding suction 0.83 %, pressure 0.30 %, hub 0.01 %, shroud 0.49 % (at most 1 %
+#: allowed); overcut at most 0.0133 mm (pressure); the strict shares 1.16 / 0.57 / 1.23 / 1.39 %
+SURFACES = ("suction", "pressure", "hub", "shroud")
 
 
 @pytest.mark.slow
-def test_the_set_is_designed_stored_and_answered_again_from_the_store(nodes):
+def test_the_set_is_designed_stored_and_answered_again_from_the_store(nodes, default_geometry):
     t0 = time.monotonic()
     first = plan_set(nodes, channel=2)
-    # the set machines the channel to the tolerance (SUCCESS), or the closest certified set is delivered flagged
-    assert first.plan_ids, first.message
-    assert len(first.plan_ids) == len(first.electrode_labels) >= 2
-    chosen = [c for c in first.candidates if c.status == "chosen"]
-    if first.success:
-        assert first.error_code.val == ErrorCode.SUCCESS
-        assert len(chosen) == 1 and chosen[0].electrode_count == len(first.plan_ids)
-    else:
-        assert first.error_code.val == ErrorCode.INFEASIBLE and not chosen
-        assert "leaves the least stock" in first.message
-    assert all(c.status != "not tried" or "machines the channel" in c.reason for c in first.candidates)
-    proven = [c for c in first.candidates if c.stock_max_exact]
-    assert proven and all(len(c.stock_max_exact) == 4 and max(c.overcut_max) >= 0 for c in proven)
-    for m in first.metrics:
-        assert m.certified and m.cycle_certified and len(m.stock_max_exact) == 4
+    # the default blisk's set machines the channel to the tolerance: front/rear, accepted on the share beyond
+    # the corner rounding (measured: the largest, the suction wall's, is 0.83 % of 1 % allowed)
+    assert first.success and first.error_code.val == ErrorCode.SUCCESS, \
+        f"the default blisk's set machines the channel to the tolerance: {first.message}"
+    assert [(c.name, c.status) for c in first.candidates] == [
+        ("one electrode", "infeasible"), ("front/rear", "chosen"), ("left/right", "infeasible"),
+        ("three axial pieces", "not tried")], \
+        f"one electrode and left/right have no certified path, front/rear is chosen, three pieces are not needed: " \
+        f"{[(c.name, c.status, c.reason[:100]) for c in first.candidates]}"
+    (chosen,) = [c for c in first.candidates if c.status == "chosen"]
+    assert list(first.electrode_labels) == ["front", "rear"] and len(first.plan_ids) == 2, \
+        f"the front electrode first, then the rear: {list(first.electrode_labels)}"
+    assert "machines the channel to 0.02 mm" in chosen.reason, chosen.reason
+    assert all(c.status != "not tried" or "machines the channel" in c.reason for c in first.candidates), \
+        "a candidate is left untried only because a smaller set machines the channel"
+
+    # the acceptance figure as stored with the set (set.json's content): the chosen candidate's share beyond
+    # the corner rounding, per wall, within the 1 % allowed, the corner rounding from the walls' geometry
     store = PlanStore(str(nodes[3]))
     seq = store.get_sequence(first.set_id)
-    assert [pid for pid, _ in seq.steps] == list(first.plan_ids)
-    assert all(ch == 2 for _, ch in seq.steps)
+    meta = seq.meta
+    assert meta["meets_tolerance"] is True and meta["chosen"] == "front/rear", \
+        "set.json's meets_tolerance is the acceptance (the share beyond the corner rounding), and it holds"
+    (stored,) = [c for c in meta["candidates"] if c["name"] == "front/rear"]
+    proof = stored["removal"]
+    beyond = {s: proof["surfaces"][s]["area_fraction_beyond_inherent"] for s in SURFACES}
+    strict = {s: proof["surfaces"][s]["area_fraction_above_tolerance"] for s in SURFACES}
+    assert max(beyond.values()) <= 0.01, f"every wall within 1 % beyond the corner rounding: {beyond}"
+    assert 0.006 < beyond["suction"] < 0.01, \
+        f"the suction wall's share is the measured 0.83 % (its axial end strips and the front/rear seam): {beyond}"
+    assert proof["every_sample_within_tolerance"] is False and max(strict.values()) > 0.01, \
+        f"the strict figure (sharp corners) is not met: the corner rounding alone exceeds the tolerance: {strict}"
+    assert "corner rounding of the walls' own geometry" in proof["accuracy"]["inherent_reference"], \
+        "the inherent stock is computed from the walls, not by the electrode design code"
+    inherent = {s: proof["surfaces"][s]["inherent_stock_max_mm"] for s in SURFACES}
+    assert all(0.041 < v < 0.07 for v in inherent.values()), \
+        f"the rounding g (1/sin(phi/2) - 1) of corners of 70 to 90 deg (0.062 / 0.065 mm measured): {inherent}"
+
+    # overcut: within the tolerance, and as the certified cycles bound it independently of the proof: every
+    # electrode vertex stays at least the machining margin from the final walls over the whole cycle, so the
+    # eroded surface reaches at most gap - margin inside them (mesh faces between vertices: 2 um more at most)
+    gap = default_geometry.design.discharge_gap
+    assert len(chosen.overcut_max) == 4
+    overcut = max(chosen.overcut_max)
+    for m in first.metrics:
+        assert m.certified and m.cycle_certified and len(m.stock_max_exact) == 4, \
+            "every delivered plan and its whole cycle are certified, with the set's proof"
+        assert m.machining_margin == pytest.approx(gap - 0.02), "the cycles are certified with gap - tolerance"
+    bound = gap - min(m.machining_margin for m in first.metrics) + 0.002
+    assert overcut <= bound, f"overcut {overcut:.4f} mm beyond what the certified cycles allow ({bound:.4f} mm)"
+    assert overcut <= 0.02, f"overcut {overcut:.4f} mm within the 0.02 mm tolerance"
+    assert overcut > 0.005, \
+        f"the proof sees the cycles use the margin (measured 0.0133 mm; 0 would mean it sees no approach): {overcut}"
+    assert [list(m.overcut_max) for m in first.metrics] == [list(chosen.overcut_max)] * 2, \
+        "each electrode's metrics carry the whole set's proof"
+
+    assert [pid for pid, _ in seq.steps] == list(first.plan_ids), "the stored set lists the plans in order"
+    assert all(ch == 2 for _, ch in seq.steps), "the stored set is for channel 2"
     program = store.get_sequence(first.program_id)
-    assert len(program.steps) == 60 * len(first.plan_ids)
+    assert len(program.steps) == 60 * len(first.plan_ids), "the program runs every electrode through 60 channels"
     elapsed = time.monotonic() - t0
     again = plan_set(nodes, channel=2)
-    assert again.success == first.success and list(again.plan_ids) == list(first.plan_ids)
-    assert again.message.startswith("from the plan store")
-    assert time.monotonic() - t0 - elapsed < 30
+    assert again.success == first.success and list(again.plan_ids) == list(first.plan_ids), \
+        "the same request gets the same set"
+    assert again.message.startswith("from the plan store"), f"answered from the store: {again.message[:100]}"
+    assert time.monotonic() - t0 - elapsed < 30, "the stored answer takes under 30 s"
