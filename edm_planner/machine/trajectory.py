@@ -16,7 +16,7 @@ acceleration zero, so the rest sample shared by two legs is the same point
 for both and appears once), and the legs are concatenated
 (:func:`concatenate_legs`) with :class:`PhaseMark` s at every leg start.
 
-Every timed plan and leg leaves through :func:`resample`: where its knots are too
+Every leg leaves :func:`time_leg` through :func:`resample`: where its knots are too
 far apart for their positions, velocities and accelerations to agree by the
 trapezoid rule (the rest quintics at a leg's ends, the short legs of the
 process), points of the same profile are added between them, each with the
@@ -224,8 +224,9 @@ class PhaseMark:
 def plan_trajectory(samples, axis_names, machine, options=TimingOptions(), final_pose=None):
     """Time a certified axis path on a machine and express it in joint coordinates.
 
-    The points are the samples and, where the samples are too far apart for their p, v and a to agree by
-    the trapezoid rule (``options.consistency``), points of the timed profile between them (:func:`resample`).
+    One point per sample: the pieces between them are toppra's cubics, whose velocities and accelerations
+    agree exactly by the trapezoid rule and whose positions and velocities to ``jerk * dt^2 / 12`` (a leg of a
+    cycle, which comes to rest in acceleration too, gets points between its samples: :func:`time_leg`).
 
     Parameters
     ----------
@@ -250,8 +251,7 @@ def plan_trajectory(samples, axis_names, machine, options=TimingOptions(), final
         INVALID_REQUEST (plan axes not the machine's, malformed samples), INFEASIBLE (travel or
         limit violation, with axis and time).
     """
-    arrays = _plan_arrays(samples, axis_names, machine, options, final_pose)
-    return resample(arrays, machine.limits_for(arrays.axis_names), options)
+    return _plan_arrays(samples, axis_names, machine, options, final_pose)
 
 
 def _plan_arrays(samples, axis_names, machine, options, final_pose):
