@@ -1,14 +1,15 @@
 """An action client for the tests: goals over DDS with a deadline on every wait, feedback recorded with its time.
 
 Used with ``ros_harness.InProcessRos`` (a client node on a private context, an executor spinning in a
-thread): the futures of ``rclpy.action.ActionClient`` are completed by that executor, and every wait
+thread): the futures of the action client (rclpy's, with its request/answer race closed) are completed by that executor, and every wait
 here polls them against a deadline, so a server that never answers fails the test with what it waited for.
 """
 
 import time
 
 from action_msgs.msg import GoalStatus
-from rclpy.action import ActionClient
+
+from edm_planner.nodes.action_client import LockedActionClient
 
 STATUS_NAMES = {GoalStatus.STATUS_SUCCEEDED: "SUCCEEDED", GoalStatus.STATUS_ABORTED: "ABORTED",
                 GoalStatus.STATUS_CANCELED: "CANCELED", GoalStatus.STATUS_UNKNOWN: "UNKNOWN"}
@@ -82,7 +83,7 @@ class Actions:
 
     def client(self, action_type, name, timeout=60.0):
         if name not in self.clients:
-            client = ActionClient(self.node, action_type, name)
+            client = LockedActionClient(self.node, action_type, name)
             if not client.wait_for_server(timeout_sec=timeout):
                 raise TimeoutError(f"action server {name} not available after {timeout:.0f} s")
             self.clients[name] = client

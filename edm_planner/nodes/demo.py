@@ -120,9 +120,9 @@ def _action(node, action_type, name, goal, timeout, bringup, on_feedback=None):
 
     Returns (status, result). Interrupted (Ctrl-C), the goal is cancelled before the exception goes on.
     """
-    from rclpy.action import ActionClient
+    from .action_client import LockedActionClient
 
-    client = ActionClient(node, action_type, name)
+    client = LockedActionClient(node, action_type, name)
     deadline = time.monotonic() + timeout
 
     def wait(future, what):
