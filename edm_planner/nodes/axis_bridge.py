@@ -113,7 +113,7 @@ from ..planning.certificate import certificate_digest, check_digest
 from ..planning.store import PlanStoreError
 from .conversions import error_code, msg_to_cycle
 from .geometry_loader import LATCHED
-from .runtime import answer, declare_plan_store, spin_node
+from .runtime import answer, declare_plan_store, end_canceled, spin_node
 
 
 def duration_msg(seconds):
@@ -310,7 +310,7 @@ class AxisBridgeNode(Node):
                 result.message += (f"; CANCELED at {executed:.2f} s of {duration:.2f} s: stop sent on "
                                    f"{self.trajectory_pub.topic_name} (an empty JointTrajectory)")
                 self.get_logger().info(result.message)
-                goal_handle.canceled()
+                end_canceled(goal_handle)
                 return result
             k = max(0, int(np.searchsorted(times, min(executed, duration), side="right")) - 1)
             mark = arrays.phases[k] if arrays.phases else None

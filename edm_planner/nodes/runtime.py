@@ -3,6 +3,7 @@
 import faulthandler
 import logging
 import signal
+import time
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
@@ -43,6 +44,24 @@ def enable_stack_dumps():
     """``kill -USR1 <pid>`` prints every thread's Python stack to stderr (the node's log), even while the process
     is stuck in C code (a DDS call): what a supervisor or a test's deadline reports of a node that does not answer."""
     faulthandler.register(signal.SIGUSR1, all_threads=True)
+
+
+def end_canceled(goal_handle, timeout=10.0):
+    """End an action goal CANCELED once rclpy has moved it to CANCELING; True if it did.
+
+    rclpy makes that transition only after the cancel callback has returned, and work stopped by the callback
+    (a set design, a followed trajectory) can get here first: CANCELED from EXECUTING is refused
+    (``invalid transition``) and the goal would end ABORTED. So wait for the transition, not for ever: a goal
+    whose cancel never arrives within ``timeout`` [s] is aborted.
+    """
+    deadline = time.monotonic() + timeout
+    while not goal_handle.is_cancel_requested:
+        if time.monotonic() > deadline:
+            goal_handle.abort()
+            return False
+        time.sleep(0.005)
+    goal_handle.canceled()
+    return True
 
 
 def answer(node, service, fill, request, response):

@@ -72,7 +72,7 @@ from ..planning.store import (PlanStoreError, cycle_from_record, plan_to_stored,
 from ..roughing import RoughingOptions, plan_roughing, roughing_plan_id
 from .conversions import cycle_fields, design_override, error_code, machining_figures, matrix_to_pose
 from .geometry_loader import LATCHED
-from .runtime import answer, declare_plan_store, spin_node
+from .runtime import answer, declare_plan_store, end_canceled, spin_node
 
 def plan_options(settings, default_budget):
     """PlannerSettings message -> PlanOptions (NaN / 0 / empty take the defaults)."""
@@ -486,7 +486,7 @@ class TrajectoryPlannerNode(Node):
                 result.success, result.error_code = False, error_code(ErrorCode.SUCCESS)
                 result.message = (f"cancelled after {time.monotonic() - t0:.1f} s: nothing delivered, nothing "
                                   f"written to the plan store")
-                goal_handle.canceled()
+                end_canceled(goal_handle)
                 self.get_logger().info(f"PlanElectrodeSet goal {result.message}")
             elif result.success:
                 goal_handle.succeed()
