@@ -63,7 +63,7 @@ def run_in_shell(ws, script, overlay=True, timeout=120, env=None):
 def copy_repository(dest):
     """The files a clone of the repository holds (tracked, and new files not ignored), as the work tree has them."""
     listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
-                            cwd=REPO, capture_output=True, text=True, check=True).stdout.split("\0")
+                            cwd=REPO, capture_output=True, text=True, check=True, timeout=120).stdout.split("\0")
     count = 0
     for rel in filter(None, listed):
         src = REPO / rel

@@ -122,14 +122,15 @@ def small_disk(path, size="8m"):
     path.mkdir()
     kind = None
     if not os.environ.get("EDM_TEST_NO_TMPFS") and shutil.which("mount"):
-        r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)], capture_output=True)
+        r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)], capture_output=True,
+                           timeout=60)
         kind = "tmpfs" if r.returncode == 0 else None
     if kind is None and not os.environ.get("EDM_TEST_NO_LOOP") and shutil.which("mount") and shutil.which("mke2fs"):
         image = path.parent / f"{path.name}.ext2"
         made = subprocess.run(["mke2fs", "-q", "-F", "-t", "ext2", "-m", "0", str(image), size.upper()],
-                              capture_output=True)
+                              capture_output=True, timeout=60)
         r = made if made.returncode else subprocess.run(["mount", "-o", "loop", str(image), str(path)],
-                                                        capture_output=True)
+                                                        capture_output=True, timeout=60)
         if r.returncode == 0:
             kind = "loop"
             (path / "lost+found").rmdir()            # the test lists what it leaves on the disk
@@ -141,7 +142,7 @@ def small_disk(path, size="8m"):
     try:
         yield kind
     finally:
-        subprocess.run(["umount", "-l", str(path)], check=True)
+        subprocess.run(["umount", "-l", str(path)], check=True, timeout=60)
 
 
 def fill(path):
