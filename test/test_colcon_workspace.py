@@ -167,6 +167,12 @@ def test_the_node_from_the_install_space_answers_load_geometry_over_dds(workspac
         assert not res.success
         assert str(install / "edm_planner" / "share" / "edm_planner" / "config") in res.message, res.message
 
+        # the install space's node runs DDS on loopback UDP too (its own copy of the profile, found by the ament
+        # index): every UDP socket it holds is bound to 127.0.0.1
+        from edm_planner.nodes.crash_drill import udp_local_addresses
+        bound = udp_local_addresses(proc.pid)
+        assert bound == {"127.0.0.1"}, f"the install space's node binds UDP to {bound}\n{log.read_text()}"
+
         # the process that answered: the interfaces' C libraries and Python extensions of the install space
         with open(f"/proc/{proc.pid}/maps") as maps:
             libs = sorted({line.split()[-1] for line in maps if "edm_planner_msgs" in line.split()[-1]})

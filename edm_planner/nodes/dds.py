@@ -53,6 +53,16 @@ def profile_path():
     return next((p for p in candidates if p.is_file()), None)
 
 
+def _same_profile(path, profile):
+    """Whether ``path`` is our loopback profile (same name and content as ``profile``)."""
+    if profile is None or os.path.basename(path) != PROFILE_NAME:
+        return False
+    try:
+        return pathlib.Path(path).read_bytes() == profile.read_bytes()
+    except OSError:
+        return False
+
+
 def wants_localhost(environ):
     """Whether the caller asked for discovery on this machine only (the range, or the older ROS_LOCALHOST_ONLY)."""
     wanted = environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "").strip().upper()
@@ -75,8 +85,10 @@ def use_loopback_udp(environ=None):
     """
     env = os.environ if environ is None else environ
     profile = profile_path()
-    ours = {str(profile)} if profile is not None else set()
     current = {env.get(v) for v in PROFILE_VARIABLES} - {None, ""}
+    # ours: this install's profile, or the same file of another install (a colcon workspace's nodes started
+    # from a process of the source tree inherit its path)
+    ours = {c for c in current if _same_profile(c, profile)} | ({str(profile)} if profile is not None else set())
     if env.get("EDM_PLANNER_DDS", "").strip().lower() == "stock":
         return "stock: EDM_PLANNER_DDS=stock"
     if env.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp") != "rmw_fastrtps_cpp":

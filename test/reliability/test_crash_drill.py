@@ -45,6 +45,20 @@ def test_a_child_told_localhost_again_is_switched_again():
     assert dds.use_loopback_udp(env) == "loopback-udp" and env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SYSTEM_DEFAULT"
 
 
+def test_the_same_profile_of_another_install_is_ours(tmp_path):
+    # a colcon workspace's node started from a process of the source tree inherits the source tree's path
+    other = tmp_path / "install" / dds.PROFILE_NAME
+    other.parent.mkdir()
+    other.write_bytes(pathlib.Path(OURS).read_bytes())
+    env = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "FASTRTPS_DEFAULT_PROFILES_FILE": str(other)}
+    assert dds.use_loopback_udp(env) == "loopback-udp", "our own profile at another path taken for the user's"
+    assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SYSTEM_DEFAULT"
+    # a file of that name with other content is the user's
+    other.write_text("<dds/>")
+    env = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "FASTRTPS_DEFAULT_PROFILES_FILE": str(other)}
+    assert dds.use_loopback_udp(env).startswith("stock:")
+
+
 @pytest.mark.parametrize("env, why", [
     ({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET"}, "beyond this machine"),
     ({}, "beyond this machine"),                                      # Jazzy's default range is SUBNET
