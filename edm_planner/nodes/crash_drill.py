@@ -318,6 +318,8 @@ def main(argv=None):
     p.add_argument("--log-dir", default=None)
     p.add_argument("--field-cache", default=None)
     args = p.parse_args(argv)
+    # killed (SIGTERM) or interrupted, the drill still stops every node it started (run()'s finally)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
     from . import dds
 
     setup = dds.loopback_unless_told()
