@@ -334,7 +334,7 @@ def main(argv=None):
     report = run(args.sets, args.rounds, args.deadline, args.log_dir, args.field_cache,
                  progress=lambda m: print(m, file=sys.stderr, flush=True))
     report["dds_setup"] = "stock" if args.dds == "stock" else setup
-    print(json.dumps(report, indent=1))
+    sys.stdout.write(json.dumps(report, indent=1) + "\n")     # the report: JSON on stdout
     return 1 if report["hung"] else 0
 
 
