@@ -11,18 +11,10 @@ from action_msgs.msg import GoalStatus
 
 from edm_planner.nodes.action_client import LockedActionClient
 
+from ros_harness import wait_for
+
 STATUS_NAMES = {GoalStatus.STATUS_SUCCEEDED: "SUCCEEDED", GoalStatus.STATUS_ABORTED: "ABORTED",
                 GoalStatus.STATUS_CANCELED: "CANCELED", GoalStatus.STATUS_UNKNOWN: "UNKNOWN"}
-
-
-def wait_for(future, timeout, what):
-    """The future's result, or TimeoutError naming ``what`` after ``timeout`` seconds."""
-    deadline = time.monotonic() + timeout
-    while not future.done():
-        if time.monotonic() > deadline:
-            raise TimeoutError(f"{what}: no answer within {timeout:.0f} s")
-        time.sleep(0.01)
-    return future.result()
 
 
 class Goal:

@@ -34,6 +34,16 @@ def ros_environment():
     return env
 
 
+def wait_for(future, timeout, what):
+    """The future's result, or TimeoutError naming ``what`` after ``timeout`` seconds (a service's or an action's)."""
+    deadline = time.monotonic() + timeout
+    while not future.done():
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{what}: no answer within {timeout:.0f} s")
+        time.sleep(0.01)
+    return future.result()
+
+
 class InProcessRos:
     """Nodes on a private context with an executor thread; use as a context manager."""
 
@@ -63,13 +73,7 @@ class InProcessRos:
         try:
             if not client.wait_for_service(timeout_sec=timeout):
                 raise TimeoutError(f"service {name} not available after {timeout} s")
-            future = client.call_async(request)
-            deadline = time.monotonic() + timeout
-            while not future.done():
-                if time.monotonic() > deadline:
-                    raise TimeoutError(f"service {name} did not answer within {timeout} s")
-                time.sleep(0.01)
-            return future.result()
+            return wait_for(client.call_async(request), timeout, f"service {name}")
         finally:
             client_node.destroy_client(client)
 
