@@ -141,9 +141,10 @@ class PoseCheck:
     passed : bool
         Every surface's minimum at least ``threshold``.
     clearance_exact : dict
-        Surface -> the smallest exact signed clearance over all samples and vertices [mm].
+        Surface -> the smallest exact signed clearance over all samples and vertices [mm]; with
+        ``faces``, the smaller of that and the walls' feature lower bound (``feature_cover``).
     argmin : dict
-        Surface -> (sample, vertex) attaining it.
+        Surface -> (sample, vertex) attaining it; vertex -1 where a wall feature does.
     max_vertex_step : float
         Largest move of any vertex between consecutive samples [mm].
     samples, vertices : int
@@ -159,6 +160,10 @@ class PoseCheck:
     elapsed : float
         [s], without building or loading the distance field.
     message : str
+    vertex_clearance : dict
+        Surface -> the vertices' exact minimum alone [mm].
+    feature_cover : float
+        Covering radius of the wall-feature samples [mm] (NaN: features not checked).
     """
 
     passed: bool
@@ -174,6 +179,8 @@ class PoseCheck:
     threshold: float
     elapsed: float
     message: str = ""
+    vertex_clearance: dict = None
+    feature_cover: float = float("nan")
 
 
 def _rigid_or_raise(poses):
@@ -184,7 +191,7 @@ def _rigid_or_raise(poses):
 
 
 def verify_poses(poses, vertices, channel, blisk, field=None, *, threshold=0.0, anchor_travel=0.5,
-                 anchor_stride=256, cache_dir=None, cache_key=None, threads=None, progress=None):
+                 anchor_stride=256, cache_dir=None, cache_key=None, threads=None, progress=None, faces=None):
     """The exact minimum clearance of every vertex at every pose, per surface of a channel.
 
     The exact signed distances are those of the numba solvers of
@@ -230,6 +237,12 @@ def verify_poses(poses, vertices, channel, blisk, field=None, *, threshold=0.0, 
         numba's thread count by default. The result does not depend on it.
     progress : callable, optional
         ``progress(stage, fraction, 0, 0.0, message)``, stage "anchors" then "search".
+    faces : (F, 3) int, optional
+        The electrode mesh's triangles (``vertices`` its vertices): the walls' sharp
+        features (blade edges, blunt end caps; :mod:`.wall_features`) are then measured
+        against the triangles at every pose, and a wall's figure is the smaller of its
+        vertex minimum and its feature lower bound (exact distances of the feature samples
+        less their covering radius, ``PoseCheck.feature_cover``). Without, vertices only.
 
     Returns
     -------
@@ -286,6 +299,20 @@ def verify_poses(poses, vertices, channel, blisk, field=None, *, threshold=0.0, 
 
     best = {s: float(r[0]) for s, r in zip(SURFACES, results)}
     argmin = {s: (int(r[1]), int(r[2])) for s, r in zip(SURFACES, results)}
+    vertex_best = dict(best)
+    cover = float("nan")
+    if faces is not None:
+        # the features are sampled in channel 0: the poses taken there
+        from .wall_features import TriangleGrid
+        features = field.wall_features
+        cover = features.cover
+        P0 = _channel_zero(P, channel, blisk.pitch)
+        upper = np.broadcast_to([best[SURFACES[0]], best[SURFACES[1]]], (N, 2))
+        feat = features.clearances(P0, TriangleGrid.from_mesh(V, faces), upper=upper)
+        for j in range(2):
+            i = int(np.argmin(feat[:, j]))
+            if feat[i, j] < best[SURFACES[j]]:
+                best[SURFACES[j]], argmin[SURFACES[j]] = float(feat[i, j]), (i, -1)
     evaluated = np.unique(np.concatenate([r[4] for r in results]))
     problems = [f"{s} clearance {best[s]:.4f} mm below {threshold} mm at sample {argmin[s][0]}"
                 for s in SURFACES if best[s] < threshold]
@@ -294,7 +321,15 @@ def verify_poses(poses, vertices, channel, blisk, field=None, *, threshold=0.0, 
                      samples=N, vertices=m, anchor_samples=len(anchors), exact_evaluations=len(evaluated),
                      exact_by_surface={s: int(r[3]) for s, r in zip(SURFACES, results)},
                      behind_pairs=len(behind_t), threshold=float(threshold), elapsed=elapsed,
-                     message="; ".join(problems) or "ok")
+                     message="; ".join(problems) or "ok", vertex_clearance=vertex_best, feature_cover=cover)
+
+
+def _channel_zero(poses, channel, pitch):
+    """Poses in channel ``channel`` taken to channel 0 (a rotation about X)."""
+    if not channel:
+        return poses
+    from ..geometry.frames import rotation_about_x
+    return np.ascontiguousarray(rotation_about_x(-channel * pitch)[None] @ poses)
 
 
 def verify_exported_plan(path, blisk, threshold=0.0, max_step=MAX_VERTEX_STEP, anchor_stride=256,
@@ -361,7 +396,7 @@ def verify_exported_plan(path, blisk, threshold=0.0, max_step=MAX_VERTEX_STEP, a
     start_outside = bool(first.min() > blisk.axial_range[1] or first.max() < blisk.axial_range[0])
 
     check = verify_poses(P, V, ch, blisk, field, threshold=threshold, anchor_stride=anchor_stride,
-                         anchor_travel=anchor_travel,
+                         anchor_travel=anchor_travel, faces=plan.electrode_mesh.faces,
                          cache_dir=cache_dir, cache_key=plan.geometry_id, progress=progress)
     problems = [] if check.passed else [check.message]
     if check.max_vertex_step > max_step + 1e-12:

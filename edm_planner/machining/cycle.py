@@ -241,7 +241,8 @@ class CycleBuilder:
         margins = np.full(4, self.margin)
         self.certifier = PathCertifier(
             field, electrode.mesh.vertices, lambda q: axis_poses(electrode.final_pose, self.axis_names, q),
-            self.axis_names, margins, electrode.final_pose[:3, 3], allowance=float(design.chord_tolerance))
+            self.axis_names, margins, electrode.final_pose[:3, 3], allowance=float(design.chord_tolerance),
+            faces=electrode.mesh.faces)
 
     # -- one straight leg ------------------------------------------------------------------
     def leg(self, phase, label, q0, q1):

@@ -43,7 +43,9 @@ import numpy as np
 from ..errors import EdmError, ErrorCode
 from ..geometry.electrode import ElectrodeDesign, design_electrodes
 from ..geometry.frames import rotation_about_x
+from ..interference import SURFACES
 from ..machine.kinematics import axis_poses
+from ..planning.certify import AGREEMENT_ACCURACY
 from ..planning.plan import PlanOptions
 from ..planning.planner import add_exact_clearance, plan_channel, plan_id_for
 from .cycle import CycleBuilder, CycleOptions, shift_channel
@@ -129,9 +131,10 @@ class Candidate:
 
     name: str
     pieces: list
-    status: str = "not tried"        # accepted, chosen, infeasible, stock left, overcut, not tried, time budget
-    reason: str = ""
+    status: str = "not tried"        # accepted, chosen, infeasible, stock left, overcut, disagreement, not tried,
+    reason: str = ""                 # time budget
     removal: object = None           # RemovalReport
+    truth: dict = None               # certificate_against_proof: per surface, the bound and the proof side by side
     cycle_travel: float = 0.0        # mm of vertex travel over all pieces' cycles
 
     @property
@@ -148,6 +151,8 @@ class Candidate:
              "pieces": [p.to_dict() for p in self.pieces]}
         if self.removal is not None:
             d["removal"] = self.removal.to_dict()
+        if self.truth is not None:
+            d["certificate_vs_proof"] = self.truth
         return d
 
 
@@ -519,7 +524,7 @@ class SetDesigner:
                                   f"certified and delivered, flagged); " + result.message)
         delivered = result.delivered
         if delivered is not None:
-            proof = delivered.removal.to_dict()
+            proof = dict(delivered.removal.to_dict(), certificate_vs_proof=delivered.truth)
             for p in delivered.pieces:
                 _move_plan(p.plan, p.cycle, p.design, channel, self.blisk.pitch)
                 p.plan.removal, p.plan.set_id = proof, result.set_id
@@ -604,8 +609,7 @@ class SetDesigner:
         cand.cycle_travel = float(sum((len(p.cycle.samples) - 1) * self.cycle_options.sample_spacing
                                       for p in cand.pieces))
         self._report((index + 0.95) / count, f"{cand.name}: material-removal proof")
-        report = self.prove(cand)
-        cand.status, cand.reason = acceptance(report, self.options)
+        judge(cand, self.prove(cand), self.options)
 
 
 _WORKER = None
@@ -647,6 +651,59 @@ def _drain(reports):
         except (queue.Empty, OSError, ValueError):
             break
     return out
+
+
+def certificate_against_proof(candidate, report):
+    """Per surface, side by side: the certificate's lower bound and the smallest distance the proof found.
+
+    The certificate bounds the clearance of every point of every electrode
+    over its whole continuous cycle from below (every leg's
+    ``clearance_lower_bound``); the removal proof measures, exactly, the
+    distance from wall samples to the electrode meshes at the cycle's poses
+    (stock + gap). A sample's distance at a pose of the cycle can never lie
+    below a sound bound, so ``proof >= certificate - AGREEMENT_ACCURACY``
+    must hold on every surface; where it does not, one of them is wrong and
+    the candidate is refused.
+
+    Returns
+    -------
+    dict
+        surface -> {"certificate_lower_bound_mm", "proof_min_distance_mm", "agree", "message"}.
+    """
+    bounds = np.vstack([np.asarray(p.cycle.clearance_lower_bound(), dtype=np.float64) for p in candidate.pieces])
+    cert = np.nanmin(bounds, axis=0) if np.isfinite(bounds).any() else np.full(bounds.shape[1], np.nan)
+    gap = float(min(report.gap))
+    out = {}
+    for name, surf in report.surfaces.items():
+        j = SURFACES.index(name)
+        proof = float(np.nanmin(surf.stock)) + gap
+        agree = bool(np.isfinite(cert[j]) and proof >= cert[j] - AGREEMENT_ACCURACY)
+        out[name] = {"certificate_lower_bound_mm": round(float(cert[j]), 6), "proof_min_distance_mm": round(proof, 6),
+                     "agree": agree,
+                     "message": "" if agree else (f"{name}: the proof finds an electrode {proof:.4f} mm from the "
+                                                  f"wall where the certificate promises at least {cert[j]:.4f} mm")}
+    return out
+
+
+def judge(candidate, report, options):
+    """Set a proven candidate's ``truth``, ``status`` and ``reason``.
+
+    A candidate whose certificate and removal proof disagree on any surface
+    (:func:`certificate_against_proof`) is refused ("disagreement", naming
+    each surface and both figures), whatever its stock: one of the two is
+    wrong, and no set is delivered on a false certificate. Otherwise
+    :func:`acceptance` decides.
+    """
+    candidate.removal = report
+    candidate.truth = certificate_against_proof(candidate, report)
+    disagree = [t["message"] for t in candidate.truth.values() if not t["agree"]]
+    if disagree:
+        candidate.status = "disagreement"
+        candidate.reason = "the certificate and the removal proof disagree: " + "; ".join(disagree)
+        _log.error("%s: %s", candidate.name, candidate.reason)
+    else:
+        candidate.status, candidate.reason = acceptance(report, options)
+    return candidate.status
 
 
 def acceptance(report, options):

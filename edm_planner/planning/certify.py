@@ -20,8 +20,12 @@ separately (``sample``) so that no vertex moves more than the sample spacing
 
 Slack lower bounds come from the fast field (its value less its error bound);
 where that is not enough the vertices that can attain the minimum are solved
-exactly. Written by hand: no library certifies a spline motion against a
-clearance oracle.
+exactly. The walls' sharp features -- the blade faces' edges at the leading
+and trailing edges and blunt end caps, which can pass between two electrode
+vertices -- are measured the other way round, feature samples against the
+electrode's triangles (:mod:`..interference.wall_features`), and the smaller
+of the two is the clearance. Written by hand: no library certifies a spline
+motion against a clearance oracle.
 """
 
 from dataclasses import dataclass
@@ -29,6 +33,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..interference import SURFACES
+
+#: how far an exact measurement (the plan's exact re-check, the removal proof) may lie below the certificate's
+#: bound before the two disagree [mm]: the exact solvers' and the wall samples' accuracy (1e-6 mm each), with
+#: room for rounding. A sound bound is never above a distance measured at a pose of the certified path.
+AGREEMENT_ACCURACY = 1e-5
 
 
 @dataclass
@@ -142,10 +151,19 @@ class PathCertifier:
         Subtracted from vertex clearances for the electrode's flat triangles
         (their deviation from the exact offset faces, the electrode's chord
         tolerance) [mm].
+    faces : (F, 3) int, optional
+        The electrode mesh's triangles: with them the walls' sharp features
+        (``field.wall_features``) are measured against the triangles too. Without,
+        only vertices are (a bound that a blade edge between two vertices escapes).
     """
 
-    def __init__(self, field, vertices, pose_of, axis_names, margins, final_offset, allowance=0.0):
+    def __init__(self, field, vertices, pose_of, axis_names, margins, final_offset, allowance=0.0, faces=None):
         self.field = field
+        self.features, self.triangles = None, None
+        if faces is not None:
+            from ..interference.wall_features import TriangleGrid
+            self.features = field.wall_features
+            self.triangles = TriangleGrid.from_mesh(vertices, faces)
         self.final_offset = np.asarray(final_offset, dtype=np.float64)
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         self.pose_of = pose_of
@@ -164,7 +182,10 @@ class PathCertifier:
         for i in unsure:                                  # inside the band: solve the candidates exactly
             low[i] = self._exact(poses[i])
             self.exact_checks += 1
-        return low - self.allowance
+        low -= self.allowance
+        if self.features is not None:
+            low[:, :2] = self.features.clearances(poses, self.triangles, upper=low[:, :2])
+        return low
 
     def _exact(self, pose):
         world = self.vertices @ pose[:3, :3].T + pose[:3, 3]

@@ -167,6 +167,13 @@ class ExitSearch:
         self.points.append(edges)
         self.labels.append(np.full(len(edges), 4))
         self.points = np.vstack(self.points)
+        # the walls' sharp features (blade edges, blunt end caps) against the electrode's triangles: one more
+        # column of the clearances (label 5, blade surfaces only), which a vertex sample cannot stand for
+        self.features, self.triangles = getattr(field, "wall_features", None), None
+        if self.features is not None:
+            from ..interference.wall_features import TriangleGrid
+            self.triangles = TriangleGrid.from_mesh(electrode.mesh.vertices, electrode.mesh.faces)
+            self.labels.append(np.array([5]))
         self.labels = np.concatenate(self.labels)
         self.required = np.array([o.margin_blade, o.margin_blade, o.margin_hub_shroud, o.margin_hub_shroud])
         self.margins = self.required + o.search_allowance
@@ -188,15 +195,32 @@ class ExitSearch:
         c = states[:, 4] if self.options.axes >= 5 else states[:, 3]
         return state_poses(self.electrode.final_pose, states[:, :3], a, c, b)
 
-    def _distances(self, states, points=None):
-        """(n, m, 4) fast clearances of the search points (or of ``points``) for candidate states."""
+    #: the feature column's clearances are searched this far [mm] (beyond: reported as this, less the cover)
+    FEATURE_REACH = 0.4
+
+    def _distances(self, states, points=None, features=None):
+        """(n, m, 4) fast clearances of the search points (or of ``points``) for candidate states.
+
+        With the walls' features (``self.features``), a last column holds their clearance to the electrode's
+        triangles (blade surfaces; the hub and shroud entries are the reach): always with the search points,
+        with ``points`` only where ``features`` is true.
+        """
+        with_features = self.features is not None and (points is None or bool(features))
         points = self.points if points is None else points
         poses = self._poses(states)
         self.evaluations += len(poses)
-        if hasattr(self.field, "posed_clearances"):        # the fast field: transform and lookup in one loop
-            return self.field.posed_clearances(poses, points, 0)
-        world = np.einsum("pij,mj->pmi", poses[:, :3, :3], points) + poses[:, None, :3, 3]
-        return self.field.clearances(world.reshape(-1, 3), 0).reshape(len(poses), len(points), 4)
+        if not len(points):                                 # the feature column alone
+            d = np.zeros((len(poses), 0, 4))
+        elif hasattr(self.field, "posed_clearances"):      # the fast field: transform and lookup in one loop
+            d = self.field.posed_clearances(poses, points, 0)
+        else:
+            world = np.einsum("pij,mj->pmi", poses[:, :3, :3], points) + poses[:, None, :3, 3]
+            d = self.field.clearances(world.reshape(-1, 3), 0).reshape(len(poses), len(points), 4)
+        if not with_features:
+            return d
+        column = np.full((len(poses), 1, 4), self.FEATURE_REACH)
+        column[:, 0, :2] = self.features.clearances(poses, self.triangles, reach=self.FEATURE_REACH)
+        return np.concatenate([d, column], axis=1)
 
     def _assess(self, states):
         """Per candidate: minimum clearance per surface (n, 4) and feasibility (n,)."""
@@ -278,9 +302,9 @@ class ExitSearch:
             return self._solve_node_lp(state, prev_incr, step, frame)
         return self._solve_node_pattern(state, prev_incr, step, frame)
 
-    def _slack(self, states, points=None):
+    def _slack(self, states, points=None, features=None):
         """(n, m, 4) slack of every search point to every surface: clearance - margin - field bound."""
-        return self._distances(states, points) - self.margins - self.bound
+        return self._distances(states, points, features) - self.margins - self.bound
 
     def _solve_node_lp(self, state, prev_incr, step, frame, iterations=5):
         """Sequential linear programming on the free increments.
@@ -317,7 +341,9 @@ class ExitSearch:
             if it == iterations:
                 break
             # forward differences: the field is trilinear, its cell gradient is what a step sees
-            moved = self._slack(self._candidates(state, x0 + np.diag(eps), step, frame), self.points[near])
+            real = near[near < len(self.points)]              # the feature column comes last, if near
+            moved = self._slack(self._candidates(state, x0 + np.diag(eps), step, frame), self.points[real],
+                                len(real) < len(near))
             base = s0.reshape(-1, 4)[near].reshape(-1)
             jac = ((moved.reshape(k, -1) - base) / eps[:, None]).T                              # (a, k)
             # near-critical constraints: those a move within the trust region can bring down to the minimum
