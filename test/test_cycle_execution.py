@@ -157,9 +157,10 @@ def test_a_leg_comes_to_full_rest_and_the_controller_quintics_are_verified(rear,
     vmax, amax, jmax = limits(machine)
     qv, qa, qj = quintic_peaks(arrays.times, arrays.positions, arrays.velocities, arrays.accelerations, n=257)
     # the exact peaks (roots of the quintics' derivatives) bound the densely sampled ones and meet the limits
-    assert np.all(qv <= arrays.timed.peak_velocity * (1 + 1e-9) + 1e-12)
-    assert np.all(qa <= arrays.timed.peak_acceleration * (1 + 1e-9) + 1e-12)
-    assert np.all(qj <= arrays.timed.peak_jerk * (1 + 1e-9) + 1e-12)
+    # (to the float error of quintic coefficients over pieces of a few ms, measured 3e-9 of the jerk)
+    assert np.all(qv <= arrays.timed.peak_velocity * (1 + 1e-8) + 1e-12)
+    assert np.all(qa <= arrays.timed.peak_acceleration * (1 + 1e-8) + 1e-12)
+    assert np.all(qj <= arrays.timed.peak_jerk * (1 + 1e-8) + 1e-12)
     assert np.all(arrays.timed.peak_jerk <= jmax * (1 + 1e-9))
     # a straight leg stays on its line (the controller's quintics too: every point's velocity and
     # acceleration lie along it)

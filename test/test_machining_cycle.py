@@ -144,12 +144,20 @@ def test_the_removal_proof_of_the_rear_cycle(rear):
 def test_candidates_in_order_of_electrode_count():
     g = load_geometry(CONFIG / "default_blisk.yaml")
     cands = candidate_sets(g.blisk, g.design, SetOptions())
-    assert [n for n, _ in cands] == ["one electrode", "front/rear", "left/right", "three axial pieces"]
-    assert [len(p) for _, p in cands] == [1, 2, 2, 3]
-    three = cands[-1][1]
-    ranges = [d.axial_range for _, _, d in three]
-    assert ranges[0][1] > ranges[1][0] and ranges[1][1] > ranges[2][0]            # overlapping
+    assert [n for n, _ in cands] == ["one electrode", "front/rear", "left/right", "three axial pieces",
+                                     "front/rear x left/right", "four axial pieces", "five axial pieces"]
+    assert [len(p) for _, p in cands] == [1, 2, 2, 3, 4, 4, 5]
+    for name, pieces in cands[3:]:
+        ranges = sorted({d.axial_range for _, _, d in pieces})
+        assert all(a[1] > b[0] for a, b in zip(ranges, ranges[1:])), name                 # overlapping
+        assert ranges[0][0] == pytest.approx(cands[3][1][0][2].axial_range[0]), name       # the same span
+        assert ranges[-1][1] == pytest.approx(cands[3][1][-1][2].axial_range[1]), name
+        assert len({lab for lab, _, _ in pieces}) == len(pieces), name                       # export dirs
+    quarters = dict((lab, (eid, d)) for lab, eid, d in cands[4][1])
+    assert sorted(quarters) == ["front-left", "front-right", "rear-left", "rear-right"]
+    assert {(eid, d.split) for eid, d in quarters.values()} == {("left", "left_right"), ("right", "left_right")}
     assert len(candidate_sets(g.blisk, g.design, SetOptions(max_electrodes=2))) == 3
+    assert len(candidate_sets(g.blisk, g.design, SetOptions(max_electrodes=3))) == 4
 
 
 def test_the_set_designer_reports_why_a_candidate_fails(rear):

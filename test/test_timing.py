@@ -169,7 +169,8 @@ def check_trajectory(t, samples, v_lim, a_lim, j_lim=np.inf):
     # point carries the mean of both sides and the difference weighs them by their durations (< a_max / 2
     # unless neighbouring steps differ a lot in length)
     err = np.abs((v[2:] - v[:-2]) / span - a[1:-1]) / a_lim
-    assert np.all(err < 0.5) and np.all(np.median(err, axis=0) < 1e-3)
+    # (median measured up to 1.2e-3 of the limit on the six-axis plan since issue 24 changed its path)
+    assert np.all(err < 0.5) and np.all(np.median(err, axis=0) < 2e-3)
     return err
 
 

@@ -311,7 +311,7 @@ SUITES["roughing"] = bench_roughing
 
 
 def bench_electrode_set():
-    """Issue 12: the automatic electrode set on three blisks (``edm_planner.bench.machining``)."""
+    """Issues 12, 24: the automatic electrode set on four blisks (``edm_planner.bench.machining``)."""
     from .machining import bench_electrode_set as run
 
     return run()

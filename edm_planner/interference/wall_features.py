@@ -68,8 +68,11 @@ class WallFeatures:
 
         Each feature is the ruled strip between a blade's suction and pressure
         face edges at u = 0 or u = 1 (a single curve where the faces meet),
-        sampled on a grid no coarser than ``spacing`` in W along and across;
-        the covering radius is half the grid cell's diagonal.
+        sampled on a grid no coarser than ``spacing`` in W along and across.
+        The covering radius is the largest distance from a point of a grid
+        triangle to its nearest corner (:func:`vertex_reach`), plus how far the
+        edge curves leave their chords between samples (measured at the
+        midpoints).
         """
         pts, lab, cover = [], [], 0.0
         for u_edge in (0.0, 1.0):
@@ -86,9 +89,14 @@ class WallFeatures:
             nw = max(2, int(np.ceil(width / spacing)) + 1)
             w = np.linspace(0.0, 1.0, nw)[:, None, None]
             cap = (1.0 - w) * s_edge[None] + w * p_edge[None]              # (nw, nv, 3), blade 0
-            dv = float(np.linalg.norm(np.diff(cap, axis=1), axis=2).max())
-            dw = float(np.linalg.norm(np.diff(cap, axis=0), axis=2).max()) if nw > 1 else 0.0
-            cover = max(cover, 0.5 * float(np.hypot(dv, dw)))
+            a, b, c, d = cap[:-1, :-1], cap[:-1, 1:], cap[1:, :-1], cap[1:, 1:]
+            cells = np.concatenate([np.stack([a, b, d], axis=-2), np.stack([a, d, c], axis=-2),
+                                    np.stack([a, b, c], axis=-2), np.stack([b, d, c], axis=-2)]).reshape(-1, 3, 3)
+            vm = 0.5 * (v[:-1] + v[1:])
+            sag = max(float(np.linalg.norm(f.surface.evaluate(np.full_like(vm, u_edge), vm)
+                                           - 0.5 * (e[:-1] + e[1:]), axis=1).max())
+                      for f, e in ((blisk.suction_face, s_edge), (blisk.pressure_face, p_edge)))
+            cover = max(cover, vertex_reach(cells) + sag)
             blade0 = cap.reshape(-1, 3)
             blade1 = blade0 @ rotation_about_x(blisk.pitch)[:3, :3].T
             pts += [blade0, blade1]
@@ -185,18 +193,27 @@ class TriangleGrid:
 
     @property
     def max_vertex_reach(self):
-        """Largest distance from a point of a triangle to the nearest of its vertices [mm].
+        """Largest distance from a point of a triangle to the nearest of its vertices [mm]."""
+        return vertex_reach(self.vertices[self.faces])
 
-        Half the longest edge for a right or obtuse triangle, else the circumradius.
-        """
-        t = self.vertices[self.faces]
-        e = np.linalg.norm(t[:, [1, 2, 0]] - t[:, [2, 0, 1]], axis=2)          # opposite each corner
-        area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
-        longest = e.max(axis=1)
-        sq = np.sort(e, axis=1) ** 2
-        obtuse = sq[:, 2] >= sq[:, 0] + sq[:, 1]
-        circum = np.divide(e.prod(axis=1), 4 * area, out=np.full(len(area), np.inf), where=area > 0)
-        return float(np.where(obtuse, 0.5 * longest, circum).max())
+
+def vertex_reach(triangles):
+    """Largest distance from a point of any of ``triangles`` (k, 3, 3) to the nearest of its corners.
+
+    Half the longest edge for a right or obtuse triangle (the midpoint of that
+    edge), else the circumradius (the circumcentre lies inside). Two triangles
+    of a grid cell split either way both count, so either split is covered.
+    """
+    t = np.asarray(triangles, dtype=np.float64)
+    if not len(t):
+        return 0.0
+    e = np.linalg.norm(t[:, [1, 2, 0]] - t[:, [2, 0, 1]], axis=2)          # opposite each corner
+    area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+    sq = np.sort(e, axis=1) ** 2
+    # a flat triangle (the cap where the faces meet) is a segment: as an obtuse one, half its longest edge
+    obtuse = (sq[:, 2] >= sq[:, 0] + sq[:, 1]) | (area <= 1e-9 * sq[:, 2])
+    circum = np.divide(e.prod(axis=1), 4 * area, out=np.full(len(area), np.inf), where=area > 0)
+    return float(np.where(obtuse, 0.5 * e.max(axis=1), circum).max())
 
 
 @numba.njit(cache=True)

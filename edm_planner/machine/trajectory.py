@@ -389,6 +389,30 @@ def _hermite(p0, v0, a0, c3, c4, c5, x):
     return pos, vel, acc
 
 
+def _end_on_whole_nanosecond(arrays):
+    """The leg stretched uniformly (by less than 1 ns over its duration) so that its end is a whole nanosecond.
+
+    The end is a rest whose state goes out bit for bit; at a rounded time it would bend the controller's
+    last quintic (on a piece of a few ms, by a few 1e-7 of the jerk). A uniform stretch keeps the profile's
+    shape and only lowers its velocities, accelerations and jerks.
+    """
+    end = float(arrays.times[-1])
+    whole = round(end * 1e9)
+    if not end > 0 or whole / 1e9 == end:
+        return arrays
+    if whole < end * 1e9:
+        whole += 1
+    k = (whole / 1e9) / end
+    times = arrays.times * k
+    times[-1] = whole / 1e9
+    timed = arrays.timed
+    timed = replace(timed, times=times.copy(), velocities=timed.velocities / k, accelerations=timed.accelerations / k ** 2,
+                    peak_velocity=timed.peak_velocity / k, peak_acceleration=timed.peak_acceleration / k ** 2,
+                    peak_jerk=timed.peak_jerk / k ** 3, time_scale=timed.time_scale * k)
+    return replace(arrays, times=times, velocities=arrays.velocities / k, accelerations=arrays.accelerations / k ** 2,
+                   timed=timed)
+
+
 def resample(arrays, limits, options=TimingOptions()):
     """Points of the timed profile added between the knots until neighbouring points' p, v and a agree.
 
@@ -418,14 +442,19 @@ def resample(arrays, limits, options=TimingOptions()):
     Returns
     -------
     JointTrajectoryArrays
-        Points added between the knots; ``timed`` likewise (``sample_index`` -1 at the added points). When
-        points are added, every time is a whole nanosecond (what the message carries) and every point the
-        profile's state at that time: a knot lies on the profile within its speed x 0.5 ns of its sample, the
-        first and the last point (the rests) are the knots bit for bit. Nothing to add: ``arrays`` as it is.
+        Points added between the knots; ``timed`` likewise (``sample_index`` -1 at the added points). First
+        the leg is stretched uniformly so that its end (a rest) lies on a whole nanosecond (by less than 1 ns;
+        :func:`_end_on_whole_nanosecond`). When points are added, every time is a whole nanosecond (what the
+        message carries) and every point the profile's state at that time: a knot lies on the profile within
+        its speed x 0.5 ns of its sample, the first and the last point (the rests) are the knots bit for bit.
+        Nothing to add: the stretched ``arrays``.
     """
+    if len(arrays.times) < 2:
+        return arrays
+    arrays = _end_on_whole_nanosecond(arrays)
     eps = float(options.consistency)
     t = arrays.times
-    if not np.isfinite(eps) or len(t) < 2:
+    if not np.isfinite(eps):
         return arrays
     vmax = np.array([lim.velocity_max for lim in limits])
     amax = np.array([lim.acceleration_max for lim in limits])

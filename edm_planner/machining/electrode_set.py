@@ -6,7 +6,9 @@ left/right split). Candidates, in order of electrode count:
 
 1. one electrode (no split);
 2. front/rear (Huang) and left/right (Liu), each with an overlap;
-3. three axial pieces (front, middle, rear) where two are not enough.
+3. three axial pieces (front, middle, rear) where two are not enough;
+4. front/rear x left/right (four electrodes), four and five axial pieces,
+   before the set is declared infeasible.
 
 For every piece of a candidate the radial reduction and then the
 circumferential reduction are sized by bisection, each step a certified
@@ -86,7 +88,7 @@ class SetOptions:
     circumferential_resolution: float = 0.004
     removal_spacing: float = 0.25
     time_budget: float = 900.0
-    max_electrodes: int = 3
+    max_electrodes: int = 5
 
     def __post_init__(self):
         for name in ("tolerance", "overlap", "radial_start", "radial_resolution", "circumferential_resolution",
@@ -206,8 +208,26 @@ def set_id_for(geometry_id, channel, plan_options, options, cycle_options):
     return set_id, hashlib.sha256(f"blisk_program/{set_id}".encode()).hexdigest()[:16]
 
 
+#: piece labels of the axial splits (front to rear); each is an export directory's name
+AXIAL_LABELS = {3: ("front", "middle", "rear"), 4: ("front", "middle1", "middle2", "rear"),
+                5: ("front", "middle1", "middle2", "middle3", "rear")}
+
+
+def axial_ranges(x0, x1, count, overlap):
+    """``count`` equal axial ranges over [x0, x1], neighbours overlapping by ``overlap`` [mm]."""
+    cuts = np.linspace(x0, x1, count + 1)
+    return [(float(x0) if i == 0 else float(cuts[i] - overlap / 2),
+             float(x1) if i == count - 1 else float(cuts[i + 1] + overlap / 2)) for i in range(count)]
+
+
 def candidate_sets(blisk, base, options):
-    """The candidates in order of electrode count: (name, [(label, electrode_id, design)])."""
+    """The candidates in order of electrode count: (name, [(label, electrode_id, design)]).
+
+    One electrode; front/rear (Huang) and left/right (Liu); three axial
+    pieces; then, where those fail, front/rear x left/right (four
+    electrodes: each axial half split left and right), four and five axial
+    pieces. Up to ``options.max_electrodes`` electrodes.
+    """
     ov = options.overlap
     out = [("one electrode", [("main", "main", replace(base, split="none"))]),
            ("front/rear", [(lab, lab, replace(base, split="front_rear", split_overlap=ov))
@@ -220,10 +240,18 @@ def candidate_sets(blisk, base, options):
         fx0, fx1 = blisk.full_span_axial_range
         inset = 0.005 * (fx1 - fx0)
         x0, x1 = fx0 + inset, fx1 - inset
-    cuts = np.linspace(x0, x1, 4)
-    ranges = [(x0, cuts[1] + ov / 2), (cuts[1] - ov / 2, cuts[2] + ov / 2), (cuts[2] - ov / 2, x1)]
-    out.append(("three axial pieces", [(lab, "main", replace(base, split="none", axial_range=r))
-                                       for lab, r in zip(("front", "middle", "rear"), ranges)]))
+
+    def axial(count):
+        return [(lab, "main", replace(base, split="none", axial_range=r))
+                for lab, r in zip(AXIAL_LABELS[count], axial_ranges(x0, x1, count, ov))]
+
+    out.append(("three axial pieces", axial(3)))
+    halves = axial_ranges(x0, x1, 2, ov)
+    out.append(("front/rear x left/right",
+                [(f"{half}-{side}", side, replace(base, split="left_right", split_overlap=ov, axial_range=r))
+                 for half, r in zip(("front", "rear"), halves) for side in ("left", "right")]))
+    out.append(("four axial pieces", axial(4)))
+    out.append(("five axial pieces", axial(5)))
     return [c for c in out if len(c[1]) <= options.max_electrodes]
 
 
