@@ -141,6 +141,39 @@ def test_the_removal_proof_of_the_rear_cycle(rear):
         assert np.median(stock[np.abs(u - x_mid) < 2.0]) <= TOLERANCE, name
 
 
+def test_the_proof_leaves_out_only_moves_that_retrace_others(rear):
+    """Return, retract and every move back of copy processing retrace earlier moves: the proof of the rest
+    finds the same stock, to the sampling of the moves (their samples differ, their segments do not)."""
+    from edm_planner.machining.electrode_set import proof_legs, proof_samples, retraces
+    from edm_planner.machining.removal import Sweep, stock_at_points, wall_samples
+
+    g, field, electrode, plan, builder, cycle = rear
+    kept = proof_legs(cycle)
+    labels = [leg.label for leg in kept]
+    assert labels[:2] == ["approach", "feed"] and all(leg.phase == "process" for leg in kept[2:])
+    assert not any("back" in lab for lab in labels)
+    dropped = [leg for leg in cycle.legs if leg not in kept]
+    assert {leg.phase for leg in dropped} == {"process", "return", "retract"}
+    assert all(retraces(leg.samples, [k.samples for k in kept]) for leg in dropped)
+    assert not retraces(cycle.legs[1].samples[:-5], [k.samples for k in kept if k.phase != "feed"])
+    samples, breaks = proof_samples(cycle)
+    assert len(samples) < 0.6 * len(cycle.samples)
+    # where a kept move does not start where the one before ended, and only there, the sweep records a break
+    apart = sum(not np.array_equal(a.samples[-1], b.samples[0]) for a, b in zip(kept, kept[1:]))
+    assert len(breaks) == apart >= 1
+    assert all(not np.array_equal(samples[i], samples[i + 1]) for i in breaks)
+    # the stock at wall points near the electrode's range, from every leg and from the kept ones
+    walls = wall_samples(g.blisk, 0.5)
+    pts = np.vstack([w.points[w.valid] for w in walls.values()])
+    pts = pts[np.abs(pts[:, 0] - electrode.final_pose[0, 3]) < 3.0][::7]
+    every = axis_poses(electrode.final_pose, plan.axis_names, cycle.samples)
+    fewer = axis_poses(electrode.final_pose, plan.axis_names, samples)
+    a, _ = stock_at_points(pts, [(electrode.mesh.vertices, electrode.mesh.faces, every)], GAP)
+    b, _ = stock_at_points(pts, [Sweep(electrode.mesh.vertices, electrode.mesh.faces, fewer, breaks)], GAP)
+    assert np.all(b >= a - 1e-12)                                  # a subset of the poses never removes more
+    assert np.abs(b - a).max() <= 0.5 * 0.05 + 1e-9                # half the 0.05 mm vertex step of a move
+
+
 def test_candidates_in_order_of_electrode_count():
     g = load_geometry(CONFIG / "default_blisk.yaml")
     cands = candidate_sets(g.blisk, g.design, SetOptions())

@@ -464,12 +464,20 @@ class SetDesigner:
 
     # -- the removal proof of a candidate ------------------------------------------------------
     def sweeps(self, candidate):
-        """(vertices, faces, channel-0 poses of the whole cycle) per piece."""
+        """A :class:`.removal.Sweep` per piece: the channel-0 poses of its cycle's moves that retrace none.
+
+        The return runs the feed backwards, the retract the approach, and every "back" move of copy
+        processing its straight moves out: the same electrode positions, which the proof need not visit twice
+        (:func:`proof_legs`; about half the poses).
+        """
+        from .removal import Sweep
+
         out = []
         for p in candidate.pieces:
             mesh = p.plan.electrode_mesh
-            poses = axis_poses(p.plan.final_pose, p.plan.axis_names, p.cycle.samples)
-            out.append((np.asarray(mesh.vertices), np.asarray(mesh.faces), poses))
+            samples, breaks = proof_samples(p.cycle)
+            poses = axis_poses(p.plan.final_pose, p.plan.axis_names, samples)
+            out.append(Sweep(np.asarray(mesh.vertices), np.asarray(mesh.faces), poses, breaks))
         return out
 
     def prove(self, candidate):
@@ -638,6 +646,67 @@ class SetDesigner:
                                       for p in cand.pieces))
         self._report((index + 0.95) / count, f"{cand.name}: material-removal proof")
         judge(cand, self.prove(cand), self.options)
+
+
+def _off_line(points, p, q):
+    """Largest distance of ``points`` from the straight line through p and q in axis space (mm and rad mixed:
+    only ever compared with a rounding tolerance)."""
+    d = q - p
+    length2 = float(d @ d)
+    if length2 == 0.0:
+        return float(np.abs(points - p).max())
+    t = (points - p) @ d / length2
+    return float(np.abs(points - (p + t[:, None] * d)).max())
+
+
+def retraces(a, earlier, tol=1e-9):
+    """Axis samples ``a`` run over motion already made: an earlier move reversed (the return), or a straight
+    move whose segment earlier straight moves on the same line cover (a move back out of copy processing)."""
+    if any(len(a) == len(b) and np.array_equal(a[::-1], b) for b in earlier):
+        return True
+    p, q = a[0], a[-1]
+    if _off_line(a, p, q) > tol:
+        return False
+    d = q - p
+    length2 = float(d @ d)
+    if length2 == 0.0:
+        return any(np.abs(b - p).max(axis=1).min() <= tol for b in earlier)
+    spans = []
+    for b in earlier:
+        if _off_line(b, p, q) <= tol:                 # a straight move on the same line
+            t = (b[[0, -1]] - p) @ d / length2
+            spans.append((float(t.min()), float(t.max())))
+    reach = 0.0
+    for lo, hi in sorted(spans):
+        if lo > reach + tol:
+            break
+        reach = max(reach, hi)
+    return reach >= 1.0 - tol
+
+
+def proof_legs(cycle):
+    """The cycle's legs the removal proof visits: a leg that retraces earlier ones (:func:`retraces`) is left
+    out, since axis values determine the pose: its electrode positions, and what they erode, are the same."""
+    kept = []
+    for leg in cycle.legs:
+        if not retraces(np.asarray(leg.samples, dtype=np.float64), [k.samples for k in kept]):
+            kept.append(leg)
+    return kept
+
+
+def proof_samples(cycle):
+    """(axis samples of the legs the proof visits, in order; indices i where sample i + 1 starts a leg that
+    does not continue from sample i)."""
+    parts, breaks, n = [], [], 0
+    for leg in proof_legs(cycle):
+        s = np.asarray(leg.samples, dtype=np.float64)
+        if parts and np.array_equal(parts[-1][-1], s[0]):
+            s = s[1:]                                 # the rest shared with the leg before
+        elif parts:
+            breaks.append(n - 1)
+        parts.append(s)
+        n += len(s)
+    return np.vstack(parts), np.asarray(breaks, dtype=np.int64)
 
 
 _WORKER = None

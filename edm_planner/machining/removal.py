@@ -107,11 +107,15 @@ class Sweep:
         Triangles of the closed, outward-oriented electrode mesh.
     poses : (k, 4, 4) float
         Electrode frame -> W, in motion order.
+    breaks : (b,) int, optional
+        Indices i where pose i + 1 does not follow pose i by a motion (the sweep joins moves that do
+        not meet: the moves that retrace another are left out of a proof); the continuous bound skips them.
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     poses: np.ndarray
+    breaks: np.ndarray = None
 
     def __iter__(self):
         # unpacks like the plain (vertices, faces, poses) tuple
@@ -886,6 +890,7 @@ def simulate_removal(blisk, sweeps, gap, tolerance=REMOVAL.stock, spacing=REMOVA
     """
     t0 = time.perf_counter()
     samples = samples or wall_samples(blisk, spacing)
+    breaks = [getattr(sw, "breaks", None) for sw in sweeps]
     sweeps = [Sweep(np.asarray(v, dtype=np.float64), np.asarray(f), _poses(p)) for v, f, p in sweeps]
     names = list(samples)
     valid = [samples[s].valid for s in names]
@@ -908,8 +913,9 @@ def simulate_removal(blisk, sweeps, gap, tolerance=REMOVAL.stock, spacing=REMOVA
         described = "the stock of the given reference electrode"
     centre = points.mean(axis=0)
     radius = float(np.linalg.norm(points - centre, axis=1).max())
-    step = max((float(_step_travel(*_inverse(sw.poses), centre, radius).max(initial=0.0)) for sw in sweeps),
-               default=0.0)
+    step = max((float(np.delete(_step_travel(*_inverse(sw.poses), centre, radius),
+                                np.asarray([] if b is None else b, dtype=np.int64)).max(initial=0.0))
+                for sw, b in zip(sweeps, breaks)), default=0.0)
     surfaces = {}
     offset = 0
     ok = True
