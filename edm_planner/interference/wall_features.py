@@ -24,6 +24,11 @@ at ``reach``. A feature inside the electrode is found on a continuous path,
 which must cross the electrode's surface to get there (the certificate
 bounds the distance between samples); a single pose that already swallows a
 feature deeper than ``reach`` is not. Plain numpy + numba; no rclpy. Units: mm.
+
+Written by hand: libigl's point-to-mesh query (the independent check in the
+tests) builds its tree on every call, about 40 ms for one pose's electrode,
+and the certificate asks for thousands of poses of the same mesh; here the
+triangles are binned once per electrode and each pose costs 0.03 to 0.7 ms.
 """
 
 import math
