@@ -122,11 +122,13 @@ class Cell:
         return self.procs.procs[name][0].pid
 
     def restart(self, name, service):
-        """Start ``name`` again and wait until its new server is in the graph.
+        """Start ``name`` again and wait until this test's client is matched with its new server alone.
 
         A killed server stays in the graph until DDS notices (its lease, 20 s), and a request sent meanwhile
         reaches only the dead one: so wait for one more server than the fewest seen since the start (the dead
-        one may leave before or after the new one comes).
+        one may leave before or after the new one comes). A server in the graph is not yet matched with the
+        client's request writer, and a request written before that is lost (services are volatile; seen once
+        on a fresh clone, the planner's request): so wait until the dead one has left too, and the client sees a server.
         """
         fewest = self.node.count_services(service)
         self.start(name)
@@ -134,6 +136,10 @@ class Cell:
         while (n := self.node.count_services(service)) <= fewest:
             fewest = min(fewest, n)
             assert time.monotonic() < deadline, f"{name} not in the graph again after 120 s"
+            time.sleep(0.01)
+        client = self.clients.get(service.lstrip("/"))
+        while self.node.count_services(service) > 1 or (client is not None and not client.service_is_ready()):
+            assert time.monotonic() < deadline, f"{name}: the killed server still in the graph after 120 s"
             time.sleep(0.01)
 
     def pid(self, name):
