@@ -59,6 +59,7 @@ Units: mm, rad. Frame W: X the blisk axis, theta = atan2(z, y).
 
 import contextlib
 import fcntl
+import functools
 import hashlib
 import importlib
 import json
@@ -522,18 +523,15 @@ class FastChannelField:
         poses, pts = _poses_and_points(poses, points, "posed_clearances")
         return _posed_kernel(poses, pts, float(channel) * self.blisk.pitch, *self._kernel_args(channel))
 
-    @property
+    @functools.cached_property
     def wall_features(self):
         """The blade edges and blunt end caps of channel 0, densely sampled (:class:`.wall_features.WallFeatures`).
 
         What a vertex check cannot see: the certificate measures them against the electrode's triangles.
         Built on first use (~0.05 s), not cached on disk.
         """
-        features = self.__dict__.get("_wall_features")
-        if features is None:
-            from .wall_features import WallFeatures
-            features = self.__dict__["_wall_features"] = WallFeatures.from_blisk(self.blisk)
-        return features
+        from .wall_features import WallFeatures
+        return WallFeatures.from_blisk(self.blisk)
 
     def pose_clearances(self, poses, points, channel=0):
         """Per pose and surface: the minimum signed distance over the electrode points.
