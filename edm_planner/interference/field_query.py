@@ -260,8 +260,11 @@ def _block_cells(m, pts, k0, n, fpt, ipt, xyz, cell, weight, ok):
     """
     lx, lr, lt = ipt[_NX] - 1.0, ipt[_NR] - 1.0, ipt[_NT] - 1.0
     lhx, lhr = ipt[_NHX] - 1.0, ipt[_NHR] - 1.0
-    mx, mr, mt = ipt[_NX] - 2, ipt[_NR] - 2, ipt[_NT] - 2
-    sr, sx, hsr = 2 * ipt[_NT], 2 * ipt[_NT] * ipt[_NR], 2 * ipt[_NHR]
+    # indices in int32 (AVX2 has no packed float64 <-> int64 conversion nor int64 minimum: LLVM scalarised
+    # them); the strides as int32 too, so that the products are 32 x 32 -> 64-bit multiplies (pmuldq)
+    i32, i64 = np.int32, np.int64
+    mx, mr, mt = i32(ipt[_NX] - 2), i32(ipt[_NR] - 2), i32(ipt[_NT] - 2)
+    sr, sx, hsr = i64(i32(2 * ipt[_NT])), i64(i32(2 * ipt[_NT] * ipt[_NR])), i64(i32(2 * ipt[_NHR]))
     px, py, pz = pts[0, k0:k0 + n], pts[1, k0:k0 + n], pts[2, k0:k0 + n]
     for i in range(n):
         x, y, z = _posed(m, px[i], py[i], pz[i])
@@ -274,12 +277,12 @@ def _block_cells(m, pts, k0, n, fpt, ipt, xyz, cell, weight, ok):
         ok[i] = good
         gx, gr, gt = (gx, gr, gt) if good else (0.0, 0.0, 0.0)
         hx, hr = (hx, hr) if good else (0.0, 0.0)
-        ix, ir, it = min(int(gx), mx), min(int(gr), mr), min(int(gt), mt)
+        ix, ir, it = min(i32(gx), mx), min(i32(gr), mr), min(i32(gt), mt)
         weight[0, i], weight[1, i], weight[2, i] = np.float32(gx - ix), np.float32(gr - ir), np.float32(gt - it)
-        cell[0, i] = ix * sx + ir * sr + it * 2
-        jx, jr = int(hx), int(hr)
+        cell[0, i] = i64(ix) * sx + i64(ir) * sr + i64(it) * 2
+        jx, jr = i32(hx), i32(hr)
         weight[3, i], weight[4, i] = np.float32(hx - jx), np.float32(hr - jr)
-        cell[1, i] = jx * hsr + jr * 2
+        cell[1, i] = i64(jx) * hsr + i64(jr) * 2
 
 
 @numba.njit(cache=True, inline="always")

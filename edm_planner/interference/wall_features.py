@@ -28,7 +28,9 @@ feature deeper than ``reach`` is not. Plain numpy + numba; no rclpy. Units: mm.
 Written by hand: libigl's point-to-mesh query (the independent check in the
 tests) builds its tree on every call, about 40 ms for one pose's electrode,
 and the certificate asks for thousands of poses of the same mesh; here the
-triangles are binned once per electrode and each pose costs 0.03 to 0.7 ms.
+triangles are binned once per electrode, the samples of each small cube are
+measured against the triangles near it, and a pose costs 0.02 to 0.3 ms
+(Sapphire Rapids, one core).
 """
 
 import math
@@ -353,22 +355,65 @@ def _nearest(qx, qy, qz, near, b, V, F, origin, cell, dims, cell_start, items):
 
 
 @numba.njit(cache=True)
+def _gather(qx, qy, qz, r, origin, cell, dims, cell_start, items, stamp, mark, out):
+    """The triangles in the cells of the box [q - r, q + r], each once, into ``out``; returns their count.
+
+    ``mark[t] == stamp`` once triangle t is taken (a triangle is binned in every
+    cell it overlaps). A count above ``len(out)`` means ``out`` was too short.
+    """
+    ny, nz = dims[1], dims[2]
+    i0 = max(int(math.floor((qx - r - origin[0]) / cell)), 0)
+    i1 = min(int(math.floor((qx + r - origin[0]) / cell)), dims[0] - 1)
+    j0 = max(int(math.floor((qy - r - origin[1]) / cell)), 0)
+    j1 = min(int(math.floor((qy + r - origin[1]) / cell)), dims[1] - 1)
+    k0 = max(int(math.floor((qz - r - origin[2]) / cell)), 0)
+    k1 = min(int(math.floor((qz + r - origin[2]) / cell)), dims[2] - 1)
+    n = 0
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            for k in range(k0, k1 + 1):
+                c = (i * ny + j) * nz + k
+                for m in range(cell_start[c], cell_start[c + 1]):
+                    t = items[m]
+                    if mark[t] != stamp:
+                        mark[t] = stamp
+                        if n < out.shape[0]:
+                            out[n] = t
+                        n += 1
+    return n
+
+
+#: triangles one fine cube's samples are measured against at most (more: the per-sample search)
+_GATHER = 4096
+
+
+@numba.njit(cache=True, parallel=True)
 def _feature_kernel(P, start, pts, surf, coarse_start, fine_start, coarse_centre, coarse_radius, fine_centre,
                     fine_radius, fine_surface, V, F, lo, hi, origin, cell, dims, cell_start, items, steps):
     """Per pose, per surface: min(start, the smallest distance from a feature sample to the mesh) [mm].
 
     Coarse cubes nearest first (by a lower bound of their distance, so that the
     bound drops early), fine cubes skipped where their centre's exact distance
-    less their radius cannot beat the bound, samples of the rest one by one.
+    less their radius cannot beat the bound. The samples of a fine cube that
+    remains are measured against the triangles near it, gathered once and
+    sorted by their distance d from the cube's centre: a sample stops at the
+    first triangle with d - radius above its nearest so far (less 1e-9 mm, so
+    that rounding cannot let a skipped triangle be nearer), so the result is
+    the exact minimum over all pairs, bit for bit what a search of every
+    triangle gives. Poses run in parallel.
     """
     n = P.shape[0]
     out = np.empty((n, 2))
     nc = coarse_start.shape[0] - 1
-    for t in range(n):
+    for t in numba.prange(n):
         R = P[t, :3, :3]
         ox, oy, oz = P[t, 0, 3], P[t, 1, 3], P[t, 2, 3]
         best = start[t].copy()
         low = np.empty(nc)
+        mark = np.zeros(F.shape[0], dtype=np.int64)
+        tris = np.empty(_GATHER, dtype=np.int64)
+        dc = np.empty(_GATHER)
+        stamp = 0
         for c in range(nc):
             qx, qy, qz = _to_frame(R, ox, oy, oz, coarse_centre[c])
             low[c] = _lower_bound(qx, qy, qz, lo, hi, origin, cell, dims, steps) - coarse_radius[c]
@@ -388,13 +433,38 @@ def _feature_kernel(P, start, pts, surf, coarse_start, fine_start, coarse_centre
                     continue
                 if math.sqrt(d2) - rf >= best[s]:
                     continue
+                # every triangle a sample of the cube can be nearer to than best is within best + 2 rf of the centre
+                stamp += 1
+                nt = _gather(qx, qy, qz, best[s] + 2.0 * rf, origin, cell, dims, cell_start, items, stamp, mark,
+                             tris)
+                if nt > _GATHER:                            # too many to keep: each sample searches the cells
+                    for k in range(fine_start[f], fine_start[f + 1]):
+                        px, py, pz = _to_frame(R, ox, oy, oz, pts[k])
+                        b = best[s]
+                        near = _lower_bound(px, py, pz, lo, hi, origin, cell, dims, steps)
+                        if near >= b:
+                            continue
+                        d2 = _nearest(px, py, pz, near, b, V, F, origin, cell, dims, cell_start, items)
+                        if d2 < b * b:
+                            best[s] = math.sqrt(d2)
+                    continue
+                kept = 0
+                for m in range(nt):
+                    lower = math.sqrt(_point_triangle_sq(qx, qy, qz, V, F[tris[m]])) - rf - 1e-9
+                    if lower < best[s]:
+                        tris[kept], dc[kept] = tris[m], lower
+                        kept += 1
+                order = np.argsort(dc[:kept])
                 for k in range(fine_start[f], fine_start[f + 1]):
-                    qx, qy, qz = _to_frame(R, ox, oy, oz, pts[k])
+                    px, py, pz = _to_frame(R, ox, oy, oz, pts[k])
                     b = best[s]
-                    near = _lower_bound(qx, qy, qz, lo, hi, origin, cell, dims, steps)
-                    if near >= b:
-                        continue
-                    d2 = _nearest(qx, qy, qz, near, b, V, F, origin, cell, dims, cell_start, items)
+                    d2 = np.inf
+                    for m in order:
+                        if dc[m] >= b or (dc[m] >= 0.0 and dc[m] * dc[m] >= d2):
+                            break                           # this triangle and every later one are farther
+                        e2 = _point_triangle_sq(px, py, pz, V, F[tris[m]])
+                        if e2 < d2:
+                            d2 = e2
                     if d2 < b * b:
                         best[s] = math.sqrt(d2)
         out[t, 0], out[t, 1] = best[0], best[1]
