@@ -9,6 +9,7 @@ import resource
 import time
 
 from . import SUITES
+from .cpu import cpu_record
 
 
 def main(argv=None):
@@ -17,7 +18,8 @@ def main(argv=None):
     parser.add_argument("--only", choices=sorted(SUITES), action="append", help="run only these suites")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
-    result = {"machine": {"python": platform.python_version(), "processor": platform.machine()},
+    result = {"machine": {"python": platform.python_version(), "processor": platform.machine(),
+                          "cpu": cpu_record()},
               "timestamp": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     for name in args.only or sorted(SUITES):
         t = time.perf_counter()
