@@ -3,20 +3,31 @@
 import argparse
 import json
 import logging
+import os
 import pathlib
 import platform
 import resource
+import sys
 import time
 
 from . import SUITES
-from .cpu import cpu_record
+from .cpu import AVX2_TARGET, cpu_record
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description="Run the edm_planner benchmarks (JSON out).")
     parser.add_argument("--out", default="out/bench.json", help="JSON file to write")
     parser.add_argument("--only", choices=sorted(SUITES), action="append", help="run only these suites")
+    parser.add_argument("--emulate-avx2", action="store_true",
+                        help="compile the kernels for an AVX2 CPU without AVX-512 (AMD Zen 3: NUMBA_CPU_NAME, "
+                             "NUMBA_CPU_FEATURES), in this process and the ones it starts; the arithmetic of "
+                             "that CPU, not its caches, memory or clock")
     args = parser.parse_args(argv)
+    if args.emulate_avx2 and os.environ.get("NUMBA_CPU_NAME") != AVX2_TARGET[0]:
+        # numba reads its target when it is imported: start again with it set (every child inherits it)
+        env = dict(os.environ, NUMBA_CPU_NAME=AVX2_TARGET[0], NUMBA_CPU_FEATURES=AVX2_TARGET[1])
+        os.execve(sys.executable, [sys.executable, "-m", "edm_planner.bench"] + list(sys.argv[1:] if argv is None
+                                                                                    else argv), env)
     logging.basicConfig(level=logging.WARNING)
     result = {"machine": {"python": platform.python_version(), "processor": platform.machine(),
                           "cpu": cpu_record()},

@@ -188,6 +188,7 @@ class ExitSearch:
         self._evaluated = None                   # (increments, clearances) the last node solve evaluated
         self.reach = float(np.linalg.norm(self.points, axis=1).max())    # lever of the rotations [mm]
         self.mesh_radius = float(np.linalg.norm(electrode.mesh.vertices, axis=1).max())
+        self._feature_known = None               # (pose, feature clearance) of the last pose measured
 
     # -- evaluation of candidate states ---------------------------------------------
     def _poses(self, states):
@@ -199,13 +200,13 @@ class ExitSearch:
     #: the feature column's clearances are searched this far [mm] (beyond: reported as this, less the cover)
     FEATURE_REACH = 0.4
 
-    def _distances(self, states, points=None, features=None, upper=None):
+    def _distances(self, states, points=None, features=None):
         """(n, m, 4) fast clearances of the search points (or of ``points``) for candidate states.
 
         With the walls' features (``self.features``), a last column holds their clearance to the electrode's
         triangles (blade surfaces; the hub and shroud entries are the reach): always with the search points,
-        with ``points`` only where ``features`` is true. ``upper`` (n, 2) [mm]: bounds the features' clearance
-        is known to be below (``WallFeatures.clearances``), so that their search stops there.
+        with ``points`` only where ``features`` is true; searched only up to what the last pose measured
+        allows (``_feature_bound``).
         """
         with_features = self.features is not None and (points is None or bool(features))
         points = self.points if points is None else points
@@ -221,7 +222,9 @@ class ExitSearch:
         if not with_features:
             return d
         column = np.full((len(poses), 1, 4), self.FEATURE_REACH)
-        column[:, 0, :2] = self.features.clearances(poses, self.triangles, upper=upper, reach=self.FEATURE_REACH)
+        column[:, 0, :2] = self.features.clearances(poses, self.triangles, upper=self._feature_bound(poses),
+                                                    reach=self.FEATURE_REACH)
+        self._feature_known = (poses[-1].copy(), column[-1, 0, :2].copy())
         return np.concatenate([d, column], axis=1)
 
     def _assess(self, states):
@@ -304,22 +307,25 @@ class ExitSearch:
             return self._solve_node_lp(state, prev_incr, step, frame)
         return self._solve_node_pattern(state, prev_incr, step, frame)
 
-    def _slack(self, states, points=None, features=None, upper=None):
+    def _slack(self, states, points=None, features=None):
         """(n, m, 4) slack of every search point to every surface: clearance - margin - field bound."""
-        return self._distances(states, points, features, upper) - self.margins - self.bound
+        return self._distances(states, points, features) - self.margins - self.bound
 
-    def _feature_upper(self, state, clearance, moved):
-        """(n, 2) [mm]: bounds of the feature clearance at ``moved`` states, from ``clearance`` (2,) at ``state``.
+    def _feature_bound(self, poses):
+        """(n, 2) [mm]: bounds of the feature clearance at ``poses`` from the last one measured (None: none yet).
 
         The features' distance to the electrode is 1-Lipschitz in how far any electrode point moves, and no
-        point moves more than ``|R' - R|_F r + |t' - t|`` (r: the mesh's largest vertex radius). The
-        clearance at ``state`` is a value below the reach, or the reach itself (then so is the bound); with
-        1e-9 mm for rounding, the search at ``moved`` finds the same value as without the bound, sooner.
+        point moves more than ``|R' - R|_F r + |t' - t|`` (r: the mesh's largest vertex radius). The last
+        value is exact below the reach, or the reach itself (then so is the bound); with 1e-9 mm for
+        rounding, the search finds the same values as without the bound, sooner (the LP's finite
+        differences are a few micrometres away from its base).
         """
-        p0, p = self._poses(state[None])[0], self._poses(moved)
-        shift = (np.linalg.norm(p[:, :3, :3] - p0[:3, :3], axis=(1, 2)) * self.mesh_radius
-                 + np.linalg.norm(p[:, :3, 3] - p0[:3, 3], axis=1))
-        return np.asarray(clearance)[None, :2] + shift[:, None] + 1e-9
+        if self._feature_known is None:
+            return None
+        p0, value = self._feature_known
+        shift = (np.linalg.norm(poses[:, :3, :3] - p0[:3, :3], axis=(1, 2)) * self.mesh_radius
+                 + np.linalg.norm(poses[:, :3, 3] - p0[:3, 3], axis=1))
+        return value[None, :] + shift[:, None] + 1e-9
 
     def _solve_node_lp(self, state, prev_incr, step, frame, iterations=5):
         """Sequential linear programming on the free increments.
@@ -345,9 +351,7 @@ class ExitSearch:
         # no point moves more than this within the trust region (a slack is 1-Lipschitz in the move)
         move = step * 2 * rho[0] + rho[2:].sum() * self.reach
         for it in range(iterations + 1):
-            here = self._candidates(state, x0[None], step, frame)
-            d0 = self._distances(here)[0]                                                       # (m, 4)
-            s0 = d0 - self.margins - self.bound
+            s0 = self._slack(self._candidates(state, x0[None], step, frame))[0]               # (m, 4)
             # only points that can come near the smallest slack need a gradient
             near = np.nonzero(s0.min(axis=1) <= s0.min() + 2 * move + 1e-3)[0]
             s0 = s0.reshape(-1)
@@ -359,10 +363,8 @@ class ExitSearch:
                 break
             # forward differences: the field is trilinear, its cell gradient is what a step sees
             real = near[near < len(self.points)]              # the feature column comes last, if near
-            around = self._candidates(state, x0 + np.diag(eps), step, frame)
-            with_features = len(real) < len(near)
-            upper = self._feature_upper(here[0], d0[-1], around) if with_features else None
-            moved = self._slack(around, self.points[real], with_features, upper)
+            moved = self._slack(self._candidates(state, x0 + np.diag(eps), step, frame), self.points[real],
+                                len(real) < len(near))
             base = s0.reshape(-1, 4)[near].reshape(-1)
             jac = ((moved.reshape(k, -1) - base) / eps[:, None]).T                              # (a, k)
             # near-critical constraints: those a move within the trust region can bring down to the minimum
