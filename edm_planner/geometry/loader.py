@@ -159,18 +159,30 @@ def check_file_size(path, limit, where, kind):
 
 @dataclass(eq=False)
 class LoadedGeometry:
-    """A validated blisk with its designed electrodes and its content hash."""
+    """A validated blisk with its designed electrodes and its content hash.
+
+    ``designed``: the electrodes of ``design``, or None until ``electrodes`` is first read (a file without
+    an ``electrode:`` section: its default design is only a fallback, so callers that design their own,
+    as ``edm-plan plan`` with design options or the set designer, do not wait for it).
+    """
 
     geometry_id: str
     blisk: Blisk
     design: ElectrodeDesign
-    electrodes: list
+    designed: list
     source: str = ""
     _summary: dict = field(default=None, repr=False)
     #: the file has an ``electrode:`` section; without one the planner designs the electrode set itself
     design_given: bool = True
     #: what was sliced of a blade mesh (the report of ``mesh_to_sections``), None for other sources
     blade_slicing: dict = None
+
+    @property
+    def electrodes(self):
+        """The electrodes of ``design`` (list of Electrode), designed on first use where the load left them."""
+        if self.designed is None:
+            self.designed = design_electrodes(self.blisk, self.design)
+        return self.designed
 
     def electrode(self, electrode_id=""):
         """The electrode with this id ('' for the first)."""
@@ -417,7 +429,8 @@ def build_geometry(doc, files, source=""):
         raise GeometryError("name: must be a string")
     blisk = Blisk(doc["blade_count"], hub, shroud, blade, name=name, source=blade_source, knot_rule=knot_rule)
     design = ElectrodeDesign.from_dict(doc.get("electrode"))
-    electrodes = design_electrodes(blisk, design)
+    # a design the file gives is checked now (its errors belong to the load); the default one on first use
+    electrodes = design_electrodes(blisk, design) if doc.get("electrode") is not None else None
     digest = hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode())
     for fname, h in files.hashes:
         digest.update(f"\0{fname}\0{h}".encode())

@@ -312,16 +312,23 @@ def _lower_bound(qx, qy, qz, lo, hi, origin, cell, dims, steps):
     return bd
 
 
-@numba.njit(cache=True)
-def _nearest_in_box(qx, qy, qz, r, V, F, origin, cell, dims, cell_start, items):
-    """Smallest squared distance from q to the triangles in the cells of the box [q - r, q + r] (inf: none)."""
-    ny, nz = dims[1], dims[2]
+@numba.njit(cache=True, inline="always")
+def _cell_box(qx, qy, qz, r, origin, cell, dims):
+    """The grid's cell index ranges (i0, i1, j0, j1, k0, k1), inclusive, that the box [q - r, q + r] meets."""
     i0 = max(int(math.floor((qx - r - origin[0]) / cell)), 0)
     i1 = min(int(math.floor((qx + r - origin[0]) / cell)), dims[0] - 1)
     j0 = max(int(math.floor((qy - r - origin[1]) / cell)), 0)
     j1 = min(int(math.floor((qy + r - origin[1]) / cell)), dims[1] - 1)
     k0 = max(int(math.floor((qz - r - origin[2]) / cell)), 0)
     k1 = min(int(math.floor((qz + r - origin[2]) / cell)), dims[2] - 1)
+    return i0, i1, j0, j1, k0, k1
+
+
+@numba.njit(cache=True)
+def _nearest_in_box(qx, qy, qz, r, V, F, origin, cell, dims, cell_start, items):
+    """Smallest squared distance from q to the triangles in the cells of the box [q - r, q + r] (inf: none)."""
+    ny, nz = dims[1], dims[2]
+    i0, i1, j0, j1, k0, k1 = _cell_box(qx, qy, qz, r, origin, cell, dims)
     best = np.inf
     for i in range(i0, i1 + 1):
         for j in range(j0, j1 + 1):
@@ -362,12 +369,7 @@ def _gather(qx, qy, qz, r, origin, cell, dims, cell_start, items, stamp, mark, o
     cell it overlaps). A count above ``len(out)`` means ``out`` was too short.
     """
     ny, nz = dims[1], dims[2]
-    i0 = max(int(math.floor((qx - r - origin[0]) / cell)), 0)
-    i1 = min(int(math.floor((qx + r - origin[0]) / cell)), dims[0] - 1)
-    j0 = max(int(math.floor((qy - r - origin[1]) / cell)), 0)
-    j1 = min(int(math.floor((qy + r - origin[1]) / cell)), dims[1] - 1)
-    k0 = max(int(math.floor((qz - r - origin[2]) / cell)), 0)
-    k1 = min(int(math.floor((qz + r - origin[2]) / cell)), dims[2] - 1)
+    i0, i1, j0, j1, k0, k1 = _cell_box(qx, qy, qz, r, origin, cell, dims)
     n = 0
     for i in range(i0, i1 + 1):
         for j in range(j0, j1 + 1):

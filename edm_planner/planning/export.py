@@ -83,6 +83,9 @@ def json_safe(value):
         return value.name
     if isinstance(value, dict):
         return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, np.ndarray) and value.dtype.kind in "biuf" and (value.dtype.kind != "f"
+                                                                       or np.isfinite(value).all()):
+        return value.tolist()                               # the same values, without a call per element
     if isinstance(value, (list, tuple, np.ndarray)):
         return [json_safe(v) for v in value]
     if isinstance(value, (bool, np.bool_)):
