@@ -30,7 +30,7 @@ tests) builds its tree on every call, about 40 ms for one pose's electrode,
 and the certificate asks for thousands of poses of the same mesh; here the
 triangles are binned once per electrode, the samples of each small cube are
 measured against the triangles near it, and a pose costs 0.02 to 0.3 ms
-(Sapphire Rapids, one core).
+(Emerald Rapids, one core).
 """
 
 import math
