@@ -11,7 +11,7 @@ import sys
 import time
 
 from . import SUITES
-from .cpu import AVX2_TARGET, cpu_record
+from .cpu import AVX2_TARGET, cpu_label, cpu_record
 
 
 def main(argv=None):
@@ -29,8 +29,9 @@ def main(argv=None):
         os.execve(sys.executable, [sys.executable, "-m", "edm_planner.bench"] + list(sys.argv[1:] if argv is None
                                                                                     else argv), env)
     logging.basicConfig(level=logging.WARNING)
-    result = {"machine": {"python": platform.python_version(), "processor": platform.machine(),
-                          "cpu": cpu_record()},
+    cpu = cpu_record()
+    logging.getLogger(__name__).warning("bench on %s", cpu_label(cpu))
+    result = {"machine": {"python": platform.python_version(), "processor": platform.machine(), "cpu": cpu},
               "timestamp": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     for name in args.only or sorted(SUITES):
         t = time.perf_counter()

@@ -43,22 +43,21 @@ def _khz(name):
 
 
 def compile_target():
-    """(cpu name, {feature: bool}) numba's kernels are compiled for in this process."""
-    import llvmlite.binding as llvm
-    from numba.core import config
+    """(cpu name, {feature: bool}) numba's kernels are compiled for in this process.
 
-    llvm.initialize_native_target()
-    name = config.CPU_NAME or llvm.get_host_cpu_name()
-    if config.CPU_FEATURES:
-        features = {f[1:]: f[0] == "+" for f in config.CPU_FEATURES.split(",") if f}
-    else:
-        features = dict(llvm.get_host_cpu_features())
-    return name, features
+    Numba's own answer: the CPU and features its code generator targets and keys its cache by
+    (``NUMBA_CPU_NAME`` / ``NUMBA_CPU_FEATURES`` where set, else the host's, less AVX where numba disables it).
+    """
+    from numba.core.registry import cpu_target
+
+    _, name, features = cpu_target.target_context.codegen().magic_tuple()
+    return name, {f[1:]: f[0] == "+" for f in features.split(",") if f}
 
 
 def cpu_record():
     """The CPU and the kernels' compile target, for a benchmark's JSON."""
     import numba
+    from numba.core import config
 
     info = _cpuinfo()
     flags = set(info.get("flags", "").split())
@@ -78,7 +77,7 @@ def cpu_record():
         "cpu_simd": [f for f in SIMD_FEATURES if f.replace(".", "_") in flags],
         "kernels_compiled_for": name,
         "kernels_simd": [f for f in SIMD_FEATURES if features.get(f)],
-        "emulated_target": bool(os.environ.get("NUMBA_CPU_NAME")),
+        "emulated_target": config.CPU_NAME is not None,
     }
 
 
