@@ -134,7 +134,7 @@ class WallFeatures:
         g = mesh_grid
         out = _feature_kernel(P, np.ascontiguousarray(start), self.points, self.surface, *self.groups,
                               g.vertices, g.faces, g.lo, g.hi, g.origin, float(g.cell), g.dims, g.cell_start, g.items,
-                              g.steps)
+                              g.steps, max(1, min(numba.get_num_threads(), len(P))))
         return out - self.cover
 
 
@@ -366,7 +366,7 @@ def _gather(qx, qy, qz, r, origin, cell, dims, cell_start, items, stamp, mark, o
     """The triangles in the cells of the box [q - r, q + r], each once, into ``out``; returns their count.
 
     ``mark[t] == stamp`` once triangle t is taken (a triangle is binned in every
-    cell it overlaps). A count above ``len(out)`` means ``out`` was too short.
+    cell it overlaps); ``out`` has room for every triangle of the mesh.
     """
     ny, nz = dims[1], dims[2]
     i0, i1, j0, j1, k0, k1 = _cell_box(qx, qy, qz, r, origin, cell, dims)
@@ -379,19 +379,14 @@ def _gather(qx, qy, qz, r, origin, cell, dims, cell_start, items, stamp, mark, o
                     t = items[m]
                     if mark[t] != stamp:
                         mark[t] = stamp
-                        if n < out.shape[0]:
-                            out[n] = t
+                        out[n] = t
                         n += 1
     return n
 
 
-#: triangles one fine cube's samples are measured against at most (more: the per-sample search)
-_GATHER = 4096
-
-
 @numba.njit(cache=True, parallel=True)
 def _feature_kernel(P, start, pts, surf, coarse_start, fine_start, coarse_centre, coarse_radius, fine_centre,
-                    fine_radius, fine_surface, V, F, lo, hi, origin, cell, dims, cell_start, items, steps):
+                    fine_radius, fine_surface, V, F, lo, hi, origin, cell, dims, cell_start, items, steps, workers):
     """Per pose, per surface: min(start, the smallest distance from a feature sample to the mesh) [mm].
 
     Coarse cubes nearest first (by a lower bound of their distance, so that the
@@ -402,72 +397,64 @@ def _feature_kernel(P, start, pts, surf, coarse_start, fine_start, coarse_centre
     first triangle with d - radius above its nearest so far (less 1e-9 mm, so
     that rounding cannot let a skipped triangle be nearer), so the result is
     the exact minimum over all pairs, bit for bit what a search of every
-    triangle gives. Poses run in parallel.
+    triangle gives. Poses run in parallel on ``workers`` threads, each with
+    scratch arrays of its own (one entry per triangle), made once rather than
+    per pose.
     """
     n = P.shape[0]
     out = np.empty((n, 2))
     nc = coarse_start.shape[0] - 1
-    for t in numba.prange(n):
-        R = P[t, :3, :3]
-        ox, oy, oz = P[t, 0, 3], P[t, 1, 3], P[t, 2, 3]
-        best = start[t].copy()
+    for w in numba.prange(workers):
         low = np.empty(nc)
         mark = np.zeros(F.shape[0], dtype=np.int64)
-        tris = np.empty(_GATHER, dtype=np.int64)
-        dc = np.empty(_GATHER)
-        stamp = 0
-        for c in range(nc):
-            qx, qy, qz = _to_frame(R, ox, oy, oz, coarse_centre[c])
-            low[c] = _lower_bound(qx, qy, qz, lo, hi, origin, cell, dims, steps) - coarse_radius[c]
-        for c in np.argsort(low):
-            s = fine_surface[coarse_start[c]]
-            if low[c] >= best[s]:
-                continue
-            for f in range(coarse_start[c], coarse_start[c + 1]):
-                rf = fine_radius[f]
-                qx, qy, qz = _to_frame(R, ox, oy, oz, fine_centre[f])
-                near = _lower_bound(qx, qy, qz, lo, hi, origin, cell, dims, steps)
-                if near - rf >= best[s]:
+        tris = np.empty(F.shape[0], dtype=np.int64)
+        dc = np.empty(F.shape[0])
+        stamp = 0                                      # counts on over this thread's poses: mark needs no reset
+        for t in range(w, n, workers):
+            R = P[t, :3, :3]
+            ox, oy, oz = P[t, 0, 3], P[t, 1, 3], P[t, 2, 3]
+            best = start[t].copy()
+            for c in range(nc):
+                qx, qy, qz = _to_frame(R, ox, oy, oz, coarse_centre[c])
+                low[c] = _lower_bound(qx, qy, qz, lo, hi, origin, cell, dims, steps) - coarse_radius[c]
+            for c in np.argsort(low):
+                s = fine_surface[coarse_start[c]]
+                if low[c] >= best[s]:
                     continue
-                reach = best[s] + rf
-                d2 = _nearest(qx, qy, qz, near, reach, V, F, origin, cell, dims, cell_start, items)
-                if d2 >= reach * reach:
-                    continue
-                if math.sqrt(d2) - rf >= best[s]:
-                    continue
-                # every triangle a sample of the cube can be nearer to than best is within best + 2 rf of the centre
-                stamp += 1
-                nt = _gather(qx, qy, qz, best[s] + 2.0 * rf, origin, cell, dims, cell_start, items, stamp, mark,
-                             tris)
-                if nt > _GATHER:                            # too many to keep: each sample searches the cells
+                for f in range(coarse_start[c], coarse_start[c + 1]):
+                    rf = fine_radius[f]
+                    qx, qy, qz = _to_frame(R, ox, oy, oz, fine_centre[f])
+                    near = _lower_bound(qx, qy, qz, lo, hi, origin, cell, dims, steps)
+                    if near - rf >= best[s]:
+                        continue
+                    reach = best[s] + rf
+                    d2 = _nearest(qx, qy, qz, near, reach, V, F, origin, cell, dims, cell_start, items)
+                    if d2 >= reach * reach:
+                        continue
+                    if math.sqrt(d2) - rf >= best[s]:
+                        continue
+                    # the triangles a sample of the cube can be nearer to than best: within best + 2 rf
+                    stamp += 1
+                    nt = _gather(qx, qy, qz, best[s] + 2.0 * rf, origin, cell, dims, cell_start, items, stamp, mark,
+                                 tris)
+                    kept = 0
+                    for m in range(nt):
+                        lower = math.sqrt(_point_triangle_sq(qx, qy, qz, V, F[tris[m]])) - rf - 1e-9
+                        if lower < best[s]:
+                            tris[kept], dc[kept] = tris[m], lower
+                            kept += 1
+                    order = np.argsort(dc[:kept])
                     for k in range(fine_start[f], fine_start[f + 1]):
                         px, py, pz = _to_frame(R, ox, oy, oz, pts[k])
                         b = best[s]
-                        near = _lower_bound(px, py, pz, lo, hi, origin, cell, dims, steps)
-                        if near >= b:
-                            continue
-                        d2 = _nearest(px, py, pz, near, b, V, F, origin, cell, dims, cell_start, items)
+                        d2 = np.inf
+                        for m in order:
+                            if dc[m] >= b or (dc[m] >= 0.0 and dc[m] * dc[m] >= d2):
+                                break                           # this triangle and every later one are farther
+                            e2 = _point_triangle_sq(px, py, pz, V, F[tris[m]])
+                            if e2 < d2:
+                                d2 = e2
                         if d2 < b * b:
                             best[s] = math.sqrt(d2)
-                    continue
-                kept = 0
-                for m in range(nt):
-                    lower = math.sqrt(_point_triangle_sq(qx, qy, qz, V, F[tris[m]])) - rf - 1e-9
-                    if lower < best[s]:
-                        tris[kept], dc[kept] = tris[m], lower
-                        kept += 1
-                order = np.argsort(dc[:kept])
-                for k in range(fine_start[f], fine_start[f + 1]):
-                    px, py, pz = _to_frame(R, ox, oy, oz, pts[k])
-                    b = best[s]
-                    d2 = np.inf
-                    for m in order:
-                        if dc[m] >= b or (dc[m] >= 0.0 and dc[m] * dc[m] >= d2):
-                            break                           # this triangle and every later one are farther
-                        e2 = _point_triangle_sq(px, py, pz, V, F[tris[m]])
-                        if e2 < d2:
-                            d2 = e2
-                    if d2 < b * b:
-                        best[s] = math.sqrt(d2)
-        out[t, 0], out[t, 1] = best[0], best[1]
+            out[t, 0], out[t, 1] = best[0], best[1]
     return out
