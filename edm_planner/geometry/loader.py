@@ -429,13 +429,14 @@ def build_geometry(doc, files, source=""):
         raise GeometryError("name: must be a string")
     blisk = Blisk(doc["blade_count"], hub, shroud, blade, name=name, source=blade_source, knot_rule=knot_rule)
     design = ElectrodeDesign.from_dict(doc.get("electrode"))
+    design_given = doc.get("electrode") is not None
     # a design the file gives is checked now (its errors belong to the load); the default one on first use
-    electrodes = design_electrodes(blisk, design) if doc.get("electrode") is not None else None
+    electrodes = design_electrodes(blisk, design) if design_given else None
     digest = hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode())
     for fname, h in files.hashes:
         digest.update(f"\0{fname}\0{h}".encode())
     return LoadedGeometry(digest.hexdigest(), blisk, design, electrodes, source,
-                          design_given=doc.get("electrode") is not None, blade_slicing=slicing)
+                          design_given=design_given, blade_slicing=slicing)
 
 
 class GeometryMemo:

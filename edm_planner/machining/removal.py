@@ -854,6 +854,12 @@ def _stock_part(points, sweeps, gap):
     return stock, which, stats
 
 
+def _as_sweep(sweep):
+    """A :class:`Sweep` of float64 arrays from a Sweep or a plain (vertices, faces, poses) tuple."""
+    v, f, p = sweep
+    return Sweep(np.asarray(v, dtype=np.float64), np.asarray(f), _poses(p), getattr(sweep, "breaks", None))
+
+
 def simulate_removal(blisk, sweeps, gap, tolerance=REMOVAL.stock, spacing=REMOVAL.spacing, samples=None,
                      reference=None, executor=None, parts=1, inherent=None):
     """Stock left on the four surfaces of channel 0 after the given electrode sweeps.
@@ -890,8 +896,7 @@ def simulate_removal(blisk, sweeps, gap, tolerance=REMOVAL.stock, spacing=REMOVA
     """
     t0 = time.perf_counter()
     samples = samples or wall_samples(blisk, spacing)
-    breaks = [getattr(sw, "breaks", None) for sw in sweeps]
-    sweeps = [Sweep(np.asarray(v, dtype=np.float64), np.asarray(f), _poses(p)) for v, f, p in sweeps]
+    sweeps = [_as_sweep(sw) for sw in sweeps]
     names = list(samples)
     valid = [samples[s].valid for s in names]
     points = np.vstack([samples[s].points[m] for s, m in zip(names, valid)])
@@ -914,8 +919,8 @@ def simulate_removal(blisk, sweeps, gap, tolerance=REMOVAL.stock, spacing=REMOVA
     centre = points.mean(axis=0)
     radius = float(np.linalg.norm(points - centre, axis=1).max())
     step = max((float(np.delete(_step_travel(*_inverse(sw.poses), centre, radius),
-                                np.asarray([] if b is None else b, dtype=np.int64)).max(initial=0.0))
-                for sw, b in zip(sweeps, breaks)), default=0.0)
+                                np.asarray([] if sw.breaks is None else sw.breaks, dtype=np.int64)).max(initial=0.0))
+                for sw in sweeps), default=0.0)
     surfaces = {}
     offset = 0
     ok = True
