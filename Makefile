@@ -32,7 +32,7 @@ bench: setup
 	$(PY) -m edm_planner.bench --out out/bench.json $(BENCH_ARGS)
 
 # 1000 CheckInterference and 100 PlanChannel calls from two clients against one set of node processes:
-# memory every 100 calls and the latency percentiles (README, Reliability).
+# memory every 100 calls and the latency percentiles (docs/manual.md, Reliability).
 soak: setup
 	$(PY) -m edm_planner.nodes.soak --out out/soak.json
 
