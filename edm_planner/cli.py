@@ -61,6 +61,13 @@ def _parser():
     e.add_argument("--split", choices=("none", "left_right", "front_rear"))
     e.add_argument("--split-overlap", type=float, metavar="MM")
     q.add_argument("--cache-dir", default=DEFAULT_CACHE, metavar="DIR", help="distance field cache")
+    q.add_argument("--machine", metavar="FILE.yaml",
+                   help="machine file whose process section (regimes, wear) an electrode set is planned with "
+                        "(default: config/machine.yaml)")
+    q.add_argument("--single-regime", action="store_true",
+                   help="an electrode set without roughing twins: the finishing electrodes erode everything")
+    q.add_argument("--volume-resolution", type=float, default=0.5, metavar="MM",
+                   help="voxel size of the removed-volume field of an electrode set (default 0.5)")
     _store_argument(q)
     q.add_argument("--replan", action="store_true", help="plan anew even if the store has the plan of this request")
     _progress_argument(q)
@@ -336,8 +343,16 @@ def _plan_set(args, geometry, options, store, progress, out, err):
         parts = [record.where(), "time left ?" if left != left else f"time left ~{left:.0f} s", record.message]
         progress("set", record.fraction, 0, 0.0, " | ".join(p for p in parts if p))
 
+    from dataclasses import replace
+
+    from .machine.config import default_machine_path, load_machine
+
+    process = load_machine(args.machine or default_machine_path()).process
+    if args.single_regime:
+        process = replace(process, rough_and_finish=False)
     designer = SetDesigner(geometry, field, options, SetOptions(time_budget=max(args.time_budget, 60.0) * 15),
-                           field_cache=(args.cache_dir, geometry.geometry_id), detail=on_step)
+                           field_cache=(args.cache_dir, geometry.geometry_id), detail=on_step, process=process,
+                           process_resolution=args.volume_resolution)
     result = designer.design(args.channel)
     not_kept = ""
     try:
@@ -366,6 +381,15 @@ def _plan_set(args, geometry, options, store, progress, out, err):
                          f"{100 * s.area_fraction_above_tolerance:6.2f} % of the area above "
                          f"({100 * s.area_fraction_beyond_inherent:5.2f} % beyond the corner rounding, up to "
                          f"{s.inherent_max:.3f} mm)  overcut {s.overcut_max:.4f} mm")
+        d = result.delivered
+        if d.allowance is not None:
+            lines.append(f"roughing twins: allowance {d.allowance['allowance_mm']:g} +- {d.allowance['band_mm']:g} mm "
+                         f"{'uniform' if d.allowance['uniform'] else 'NOT uniform'}; roughing overcut "
+                         f"{d.rough_removal.overcut_max:.4f} mm")
+        elif d.single_regime_reason:
+            lines.append(f"single-regime set: {d.single_regime_reason}")
+        if d.process is not None:
+            lines.append(d.process.summary())
     lines.append(f"written to {path.parent} (set.json, stock.png, one export per electrode)"
                  + ("; NOT kept in the plan store (see the warning)" if not_kept else ""))
     print("\n".join(lines), file=out)

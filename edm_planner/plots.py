@@ -121,3 +121,44 @@ def channel_view(workpiece, electrode_mesh, poses, glb_path, png_path, count=12)
     fig.savefig(png_path, dpi=110)
     plt.close(fig)
     return glb_path, png_path
+
+
+def process_plot(report, path):
+    """The process of a channel's set (model estimates): eroding time per electrode and phase, coloured by
+    regime, and each electrode's frontal wear per channel against the wear it may take."""
+    electrodes = report.electrodes
+    labels = [e.label for e in electrodes]
+    phases = sorted({p for e in electrodes for p, *_ in e.legs})
+    colours = {"rough": "tab:red", "finish": "tab:blue"}
+    fig, (ax_t, ax_w) = plt.subplots(1, 2, figsize=(11, 0.6 * len(labels) + 2.2))
+    y = np.arange(len(labels))
+    left = np.zeros(len(labels))
+    for k, phase in enumerate(phases):
+        hours = np.array([sum(t for p, _, _, t in e.legs if p == phase) / 3600.0 for e in electrodes])
+        ax_t.barh(y, hours, left=left, color=[colours.get(e.regime, "0.5") for e in electrodes],
+                  alpha=1.0 - 0.35 * k, edgecolor="k", lw=0.5, label=phase)
+        for yi, l, h in zip(y, left, hours):
+            if h > 0.02 * max(report.channel_eroding_time / 3600.0, 1e-9):
+                ax_t.text(l + h / 2, yi, phase, ha="center", va="center", fontsize=7)
+        left += hours
+    ax_t.set_yticks(y, [f"{e.label} ({e.regime}, {e.condition_code})" for e in electrodes])
+    ax_t.invert_yaxis()
+    ax_t.set_xlabel("eroding time per channel [h]")
+    ax_t.set_title(f"channel {report.channel_eroding_time / 3600:.2f} h, blisk "
+                   f"{report.blisk_eroding_time / 3600:.1f} h ({report.blade_count} channels)", fontsize=9)
+    ax_t.grid(axis="x", alpha=0.3)
+    wear = [e.worst_face_wear for e in electrodes]
+    ax_w.barh(y, wear, color=[colours.get(e.regime, "0.5") for e in electrodes], edgecolor="k", lw=0.5)
+    for yi, e in zip(y, electrodes):
+        ax_w.plot([e.wear_limit] * 2, [yi - 0.4, yi + 0.4], color="k", ls="--", lw=1)
+        ax_w.text(e.worst_face_wear, yi, f" {e.electrodes_per_channel}/channel, {e.electrodes_per_blisk}/blisk "
+                                         f"(limit {e.wear_limit:g} mm, dashed)", va="center", fontsize=7)
+    ax_w.set_yticks(y, labels)
+    ax_w.invert_yaxis()
+    ax_w.set_xlabel("wear of the worst face per channel [mm]")
+    ax_w.set_title("electrode wear (model estimate)", fontsize=9)
+    ax_w.grid(axis="x", alpha=0.3)
+    fig.suptitle("EDM process of the channel (model estimates from the machine's process section)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

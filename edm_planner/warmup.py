@@ -22,6 +22,7 @@ import tempfile
 import time
 
 import numpy as np
+import trimesh
 
 CONFIG = pathlib.Path(__file__).resolve().parent.parent / "config"
 _log = logging.getLogger(__name__)
@@ -56,6 +57,16 @@ def warm_up(part=None, cache_dir=None):
     if part in (None, 1):                                               # the removal proof's kernels
         mesh = e.mesh
         stock_at_points(world[:200], [(np.asarray(mesh.vertices), np.asarray(mesh.faces), poses[:2])], 0.1)
+    if part in (None, 0):                                               # the process: volume field, silhouettes
+        from .process.report import silhouette_area
+        from .process.volume import AnnulusBlank, Cut, removed_volumes
+
+        box = trimesh.creation.box((4.0, 2.0, 3.0))
+        pose = np.eye(4)
+        pose[:3, 3] = (10.0, 0.0, 110.0)
+        removed_volumes(AnnulusBlank.from_blisk(g.blisk), [Cut("warm-up", np.asarray(box.vertices),
+                                                               np.asarray(box.faces), pose[None], 0.1)], 1.0)
+        silhouette_area(np.asarray(box.vertices), np.asarray(box.faces), (1.0, 0.0, 0.0), pixel=0.5)
     with tempfile.TemporaryDirectory() as tmp:
         field = FastChannelField(g.blisk, spacing=0.6, cache_dir=cache_dir or tmp, cache_key="warm-up",
                                  error_samples=300)

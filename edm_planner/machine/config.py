@@ -16,6 +16,7 @@ import numpy as np
 import yaml
 
 from ..errors import EdmError, ErrorCode
+from ..process.model import DEFAULT_PROCESS, ProcessModel, parse_process
 
 LINEAR = ("X", "Y", "Z")
 ROTARY = ("A", "B", "C")
@@ -81,6 +82,7 @@ class MachineConfig:
     axes: dict
     a_zero: float = 0.0                  # rad
     c_pivot: tuple = (0.0, 0.0, 0.0)     # mm, electrode frame
+    process: ProcessModel = DEFAULT_PROCESS   # the EDM process (regimes, wear); section ``process:``
 
     @property
     def axis_names(self):
@@ -179,10 +181,10 @@ def parse_machine(doc, source="<machine>"):
     """A parsed machine YAML document -> MachineConfig (INVALID_REQUEST naming the key on any fault)."""
     if not isinstance(doc, dict):
         raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: expected a mapping with 'machine' and 'axes'")
-    unknown = sorted(set(doc) - {"machine", "axes"})
+    unknown = sorted(set(doc) - {"machine", "axes", "process"})
     if unknown:
         raise EdmError(ErrorCode.INVALID_REQUEST,
-                       f"{source}: unknown top-level keys {unknown} (allowed: machine, axes)")
+                       f"{source}: unknown top-level keys {unknown} (allowed: machine, axes, process)")
     machine = doc.get("machine") or {}
     if not isinstance(machine, dict):
         raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: machine: expected a mapping")
@@ -215,7 +217,7 @@ def parse_machine(doc, source="<machine>"):
         raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: axes: joint names must be unique, got {joints}")
     return MachineConfig(name=str(machine.get("name", "")), axes=parsed,
                          a_zero=_number(machine.get("a_zero_rad", 0.0), f"{source}: machine.a_zero_rad"),
-                         c_pivot=pivot)
+                         c_pivot=pivot, process=parse_process(doc.get("process"), source))
 
 
 #: largest machine YAML read [bytes] (a machine file is a few kB)

@@ -210,6 +210,14 @@ class PhaseMark:
         time_from_start of that point [s].
     channel : int
     plan_id, electrode_id : str
+    regime : str
+        The discharge regime of a cutting leg (the generator is on, in this regime, from this point to the
+        next mark); '' where the generator is off (rapid and non-cutting moves).
+    condition_code : str
+        The control's code of that regime ('' with the generator off).
+    removed_volume : float
+        Blisk material the leg removes [mm^3] (a model estimate, :mod:`edm_planner.process.volume`); NaN
+        where not computed.
     """
 
     phase: str
@@ -219,6 +227,13 @@ class PhaseMark:
     channel: int = 0
     plan_id: str = ""
     electrode_id: str = ""
+    regime: str = ""
+    condition_code: str = ""
+    removed_volume: float = float("nan")
+
+    @property
+    def generator_on(self):
+        return bool(self.regime)
 
 
 def plan_trajectory(samples, axis_names, machine, options=TimingOptions(), final_pose=None):
@@ -397,12 +412,25 @@ def _end_on_whole_nanosecond(arrays):
     shape and only lowers its velocities, accelerations and jerks.
     """
     end = float(arrays.times[-1])
-    whole = round(end * 1e9)
-    if not end > 0 or whole / 1e9 == end:
+    if not end > 0 or round(end * 1e9) / 1e9 == end:
         return arrays
-    if whole < end * 1e9:
+    return stretch_leg(arrays, end)
+
+
+def stretch_leg(arrays, duration):
+    """A timed leg stretched uniformly, q(t / k), to end at ``duration`` [s] rounded up to a whole nanosecond.
+
+    The same path and the same profile shape: velocities fall by k, accelerations by k^2, jerks by k^3, so
+    every verified limit still holds (k >= 1). An erosion-timed cutting leg is its motion-limited timing
+    stretched to the time the regime's removal rate needs (:func:`time_run`).
+    """
+    end = float(arrays.times[-1])
+    whole = round(duration * 1e9)
+    if whole < duration * 1e9:
         whole += 1
     k = (whole / 1e9) / end
+    if k < 1.0:
+        raise EdmError(ErrorCode.INTERNAL, f"a leg of {end:.9f} s cannot be shortened to {duration:.9f} s")
     times = arrays.times * k
     times[-1] = whole / 1e9
     timed = arrays.timed
@@ -592,7 +620,8 @@ def concatenate_legs(parts, marks):
                                                    f"away from where leg {i - 1} ends")
             first = 1
         phases.append(PhaseMark(mark["phase"], mark["label"], max(count - 1, 0), offset, int(mark.get("channel", 0)),
-                                mark.get("plan_id", ""), mark.get("electrode_id", "")))
+                                mark.get("plan_id", ""), mark.get("electrode_id", ""), mark.get("regime", ""),
+                                mark.get("condition_code", ""), float(mark.get("removed_volume", float("nan")))))
         sl = slice(first, None)
         times.append(part.times[sl] + offset)
         pos.append(part.positions[sl])
@@ -630,8 +659,17 @@ def time_run(legs, machine, options=TimingOptions(), cache=None):
     Each leg is timed rest to rest (:func:`time_leg`); a leg equal to one timed before up to a constant A
     (the same cycle leg in another channel, the same index turn) reuses that timing, moved
     (:func:`shift_joint`, travel checked). ``cache`` (a dict) may be shared between runs.
+
+    Cutting legs are erosion-timed: a leg with a discharge regime of the machine's process model
+    (``machine.process``) and a removed volume V takes at least V / (the regime's removal rate) -- the gap
+    servo advances only as fast as the discharges erode -- so its motion-limited timing is stretched
+    uniformly to that time (:func:`stretch_leg`; the average servo feed is the path over that time). Its
+    PhaseMark carries the regime and condition code (the generator is on); every other leg (approach,
+    return, retract, index, a move over material already removed) runs at the machine's limits with the
+    generator off.
     """
     cache = {} if cache is None else cache
+    process = getattr(machine, "process", None)
     parts, marks = [], []
     for leg in legs:
         names = tuple(leg.plan.axis_names)
@@ -649,7 +687,24 @@ def time_run(legs, machine, options=TimingOptions(), cache=None):
             part = hit[0]
         else:
             part = shift_joint(hit[0], "A", a0 - hit[1], machine)
+        mark = {"phase": leg.phase, "label": leg.label, "channel": leg.channel, "plan_id": leg.plan.plan_id,
+                "electrode_id": leg.plan.electrode_id}
+        regime_name = getattr(leg, "regime", "")
+        volume = float(getattr(leg, "removed_volume", float("nan")))
+        if regime_name and process is not None:
+            regime = process.regimes.get(regime_name)
+            if regime is None:
+                raise EdmError(ErrorCode.INVALID_REQUEST,
+                               f"leg {leg.label!r} of plan {leg.plan.plan_id} is to run in regime {regime_name!r}, "
+                               f"which machine {machine.name!r} does not configure (process.regimes: "
+                               f"{sorted(process.regimes)})")
+            if volume > 0:                      # a move over cleared space erodes nothing: generator off
+                mark.update(regime=regime.name, condition_code=regime.condition_code, removed_volume=volume)
+                erosion = regime.erosion_seconds(volume)
+                if erosion > part.duration:
+                    part = stretch_leg(part, erosion)
+            else:
+                mark.update(removed_volume=volume)
         parts.append(part)
-        marks.append({"phase": leg.phase, "label": leg.label, "channel": leg.channel, "plan_id": leg.plan.plan_id,
-                      "electrode_id": leg.plan.electrode_id})
+        marks.append(mark)
     return concatenate_legs(parts, marks)

@@ -95,12 +95,20 @@ class Leg:
         Axis values, first and last at rest [mm, rad].
     clearance_lower_bound : (4,) float
         Certified lower bound of the per-surface clearance along the leg [mm] (NaN: not certified here).
+    regime : str
+        Discharge regime of a cutting leg (the process model's ``rough`` or ``finish``); '' for a leg that
+        cuts nothing or whose process was not planned (the generator stays off: a dry run).
+    removed_volume : float
+        Blisk material the leg removes [mm^3], a model estimate (:mod:`edm_planner.process.volume`); NaN
+        where not computed.
     """
 
     phase: str
     label: str
     samples: np.ndarray
     clearance_lower_bound: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
+    regime: str = ""
+    removed_volume: float = float("nan")
 
 
 @dataclass
@@ -185,7 +193,8 @@ class MachiningCycle:
         return {"axis_names": list(self.axis_names), "margin_mm": self.margin, "certified": self.certified,
                 "message": self.message, "reach": self.reach.to_dict(),
                 "legs": [{"phase": p, "label": lab, "first": a, "last": b,
-                          "clearance_lower_bound_mm": {s: _f(v) for s, v in zip(SURFACES, leg.clearance_lower_bound)}}
+                          "clearance_lower_bound_mm": {s: _f(v) for s, v in zip(SURFACES, leg.clearance_lower_bound)},
+                          "regime": leg.regime, "removed_volume_mm3": _f(leg.removed_volume)}
                          for (p, lab, a, b), leg in zip(self.leg_ranges, self.legs)]}
 
 
@@ -404,7 +413,7 @@ class CycleBuilder:
         return legs, reach, None
 
     # -- the whole cycle -----------------------------------------------------------------------
-    def build(self, feed_samples, feed_margin, feed_clearance):
+    def build(self, feed_samples, feed_margin, feed_clearance, required_feed_margin=None):
         """The cycle around a certified feed.
 
         Parameters
@@ -415,6 +424,9 @@ class CycleBuilder:
             The smallest margin the feed was certified with (continuously, by the planner) [mm].
         feed_clearance : (4,) float
             The feed certificate's per-surface clearance lower bounds [mm].
+        required_feed_margin : float, optional
+            The margin the feed must have been certified with [mm]; default the machining margin (a roughing
+            twin's feed needs only its spark gap less the tolerance: no overcut, its allowance aside).
         """
         feed_samples = np.asarray(feed_samples, float)
         feed_clearance = np.asarray(feed_clearance, float)
@@ -433,9 +445,10 @@ class CycleBuilder:
             problems.append(failure)
         if not c1.certified:
             problems.append(f"the approach is not certified ({c1.failure_surface})")
-        if feed_margin < self.margin - 1e-12:
-            problems.append(f"the feed was certified with a margin of {feed_margin:.3f} mm, less than the machining "
-                            f"margin {self.margin:.3f} mm (discharge gap less the tolerance): it may overcut")
+        required = self.margin if required_feed_margin is None else float(required_feed_margin)
+        if feed_margin < required - 1e-12:
+            problems.append(f"the feed was certified with a margin of {feed_margin:.3f} mm, less than the "
+                            f"{required:.3f} mm it needs (discharge gap less the tolerance): it may overcut")
         if reach.axes_without_a:
             problems.append("no A axis: the circumferential reduction cannot be taken by copy processing")
         cycle.certified = not problems

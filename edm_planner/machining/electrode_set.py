@@ -113,10 +113,11 @@ class Piece:
     cycle: object = None             # MachiningCycle (channel-0 axis values)
     tried: list = field(default_factory=list)   # [(h, radial, result)]
     volume: float = 0.0              # electrode volume [mm^3]
+    regime: str = "finish"           # the process regime it erodes in: rough (a roughing twin) or finish
 
     def to_dict(self):
-        d = {"label": self.label, "electrode_id": self.electrode_id, "design": self.design.to_dict(),
-             "volume_mm3": round(self.volume, 1),
+        d = {"label": self.label, "electrode_id": self.electrode_id, "regime": self.regime,
+             "design": self.design.to_dict(), "volume_mm3": round(self.volume, 1),
              "sizing": [{"circumferential_reduction_rad": round(h, 5), "radial_reduction_mm": round(r, 4),
                          "result": res} for h, r, res in self.tried]}
         if self.plan is not None:
@@ -138,6 +139,11 @@ class Candidate:
     removal: object = None           # RemovalReport
     truth: dict = None               # certificate_against_proof: per surface, the bound and the proof side by side
     cycle_travel: float = 0.0        # mm of vertex travel over all pieces' cycles
+    process: object = None           # ProcessReport of the delivered candidate (machining.set_process)
+    rough_removal: object = None     # RemovalReport of its roughing twins (rough spark gap)
+    allowance: dict = None           # how uniform the allowance the twins leave is (rough_finish.allowance_figures)
+    single_regime_reason: str = ""   # why the delivered set has no roughing twins ('' : it has them)
+    roughing_notes: list = field(default_factory=list)   # pieces without a twin, and why
 
     @property
     def electrode_count(self):
@@ -155,6 +161,13 @@ class Candidate:
             d["removal"] = self.removal.to_dict()
         if self.truth is not None:
             d["certificate_vs_proof"] = self.truth
+        if self.process is not None:
+            d["process"] = self.process.to_dict()
+            d["single_regime_reason"] = self.single_regime_reason
+            d["roughing_notes"] = list(self.roughing_notes)
+        if self.rough_removal is not None:
+            d["roughing_removal"] = self.rough_removal.to_dict()
+            d["roughing_allowance"] = self.allowance
         return d
 
 
@@ -200,10 +213,12 @@ class ElectrodeSet:
 EDGE_INSETS = (0.0005, 0.001, 0.002, 0.005)
 
 
-def set_id_for(geometry_id, channel, plan_options, options, cycle_options):
+def set_id_for(geometry_id, channel, plan_options, options, cycle_options, process=None, process_resolution=0.5):
     """Deterministic id of a set request (equal requests give equal sets): (set id, whole-blisk program id)."""
-    key = json.dumps(["electrode_set", geometry_id, int(channel), asdict(plan_options), asdict(options),
-                      asdict(cycle_options)], sort_keys=True, default=str)
+    parts = ["electrode_set", geometry_id, int(channel), asdict(plan_options), asdict(options), asdict(cycle_options)]
+    if process is not None:                      # the process model changes the set (twins, leg regimes)
+        parts += [process.to_dict(), float(process_resolution)]
+    key = json.dumps(parts, sort_keys=True, default=str)
     set_id = hashlib.sha256(key.encode()).hexdigest()[:16]
     return set_id, hashlib.sha256(f"blisk_program/{set_id}".encode()).hexdigest()[:16]
 
@@ -279,8 +294,10 @@ class SetDesigner:
     """
 
     def __init__(self, geometry, field, plan_options=None, options=None, cycle_options=None, progress=None,
-                 field_cache=None, workers=None, detail=None):
+                 field_cache=None, workers=None, detail=None, process=None, process_resolution=0.5):
         self.geometry = geometry
+        self.process = process           # ProcessModel: roughing twins, removed volume, erosion time (None: none)
+        self.process_resolution = float(process_resolution)
         self.blisk = geometry.blisk
         self.field = field
         self.options = options or SetOptions()
@@ -535,7 +552,8 @@ class SetDesigner:
         accepted = [c for c in cands if c.status == "accepted"]
         result = ElectrodeSet(self.geometry.geometry_id, int(channel), cands)
         result.set_id, result.program_id = set_id_for(self.geometry.geometry_id, channel, self.plan_options,
-                                                      self.options, self.cycle_options)
+                                                      self.options, self.cycle_options, self.process,
+                                                      self.process_resolution)
         if accepted:
             best = min(accepted, key=lambda c: (c.electrode_count, -c.volume, c.cycle_travel))
             best.status = "chosen"
@@ -559,11 +577,18 @@ class SetDesigner:
                 result.message = (f"{result.closest.name} leaves the least stock (not to the tolerance; its plans are "
                                   f"certified and delivered, flagged); " + result.message)
         delivered = result.delivered
+        if delivered is not None and self.process is not None:
+            from .set_process import add_process
+            self._report(0.97, f"{delivered.name}: the EDM process (roughing twins, removed volume, erosion time)")
+            add_process(self, delivered, self.process_resolution)
         if delivered is not None:
             proof = dict(delivered.removal.to_dict(), certificate_vs_proof=delivered.truth)
+            rough_proof = None if delivered.rough_removal is None else dict(
+                delivered.rough_removal.to_dict(), roughing_allowance=delivered.allowance)
             for p in delivered.pieces:
                 _move_plan(p.plan, p.cycle, p.design, channel, self.blisk.pitch)
-                p.plan.removal, p.plan.set_id = proof, result.set_id
+                p.plan.removal = rough_proof if p.regime == "rough" else proof
+                p.plan.set_id = result.set_id
         result.planning_time = self._elapsed()
         self._report(1.0, result.message)
         return result
@@ -890,7 +915,12 @@ def write_set(result, out_dir, blisk, store=None):
         for order, piece in enumerate(chosen.pieces):
             path = write_plan(piece.plan, out / piece.label, blisk)
             doc["electrodes"].append({"order": order, "label": piece.label, "plan_id": piece.plan.plan_id,
-                                      "export": str(path.parent.relative_to(out))})
+                                      "regime": piece.regime, "export": str(path.parent.relative_to(out))})
+        if chosen.process is not None:
+            from ..plots import process_plot
+
+            process_plot(chosen.process, out / "process.png")
+            doc["process"] = dict(json_safe(chosen.process.to_dict()), plot="process.png")
     # the chosen set's stock, or the closest candidate's: where the stock stays is what an engineer asks next
     proven = [c for c in result.candidates if c.removal is not None]
     shown = chosen if chosen is not None else min(

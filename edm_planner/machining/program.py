@@ -158,6 +158,10 @@ class ProgramLeg:
     channel : int
         The channel the leg machines in (index: the channel it turns to).
     plan : PlanCycle
+    regime : str
+        Discharge regime of a cutting leg ('' : the generator is off); see :class:`~.cycle.Leg`.
+    removed_volume : float
+        [mm^3], NaN where not computed.
     """
 
     phase: str
@@ -165,6 +169,8 @@ class ProgramLeg:
     samples: np.ndarray
     channel: int
     plan: PlanCycle
+    regime: str = ""
+    removed_volume: float = float("nan")
 
 
 @dataclass
@@ -222,7 +228,8 @@ def cycle_legs(plan, channel, pitch):
                        f"the machining cycle of plan {plan.plan_id} (electrode {plan.electrode_id or '-'}) is not "
                        f"certified: {plan.cycle.message or 'no reason recorded'}; it is not sent nor written")
     return [ProgramLeg(leg.phase, leg.label,
-                       shift_to_channel(leg.samples, plan.axis_names, plan.channel, channel, pitch), int(channel), plan)
+                       shift_to_channel(leg.samples, plan.axis_names, plan.channel, channel, pitch), int(channel), plan,
+                       leg.regime, leg.removed_volume)
             for leg in plan.cycle.legs]
 
 

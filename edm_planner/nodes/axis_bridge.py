@@ -317,6 +317,7 @@ class AxisBridgeNode(Node):
             goal_handle.publish_feedback(ExecutePlanAction.Feedback(
                 executed_time=float(min(executed, duration)), duration=duration,
                 phase=mark.phase if mark else "feed", channel=int(mark.channel) if mark else 0,
+                regime=mark.regime if mark else "",
                 fraction=float(min(executed / duration, 1.0)) if duration > 0 else 1.0,
                 message=f"{min(executed, duration):.1f} of {duration:.1f} s"))
             if executed >= duration:
@@ -559,6 +560,22 @@ def _fill_phases(response, arrays):
         response.phase_names.append(mark.phase)
         response.phase_start_times.append(float(mark.time))
         response.phase_channels.append(int(mark.channel))
+    fill_regimes(response, arrays)
+
+
+def fill_regimes(response, arrays):
+    """The generator's regime along a timed trajectory (one entry per change), its eroding time and volume."""
+    marks = arrays.phases
+    for mark in marks:
+        if response.regime_names and response.regime_names[-1] == mark.regime:
+            continue
+        response.regime_names.append(mark.regime)
+        response.regime_start_times.append(float(mark.time))
+        response.regime_condition_codes.append(mark.condition_code)
+    ends = [m.time for m in marks[1:]] + [arrays.duration]
+    response.eroding_time = float(sum(e - m.time for m, e in zip(marks, ends) if m.generator_on))
+    volumes = [m.removed_volume for m in marks if np.isfinite(m.removed_volume)]
+    response.removed_volume = float(sum(volumes)) if volumes else float("nan")
 
 
 def _default_machine_file():

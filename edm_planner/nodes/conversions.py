@@ -142,6 +142,8 @@ def cycle_fields(cycle, set_id=""):
             "leg_phases": [leg.phase for leg in cycle.legs], "leg_labels": [leg.label for leg in cycle.legs],
             "leg_last": [int(b) for _, _, _, b in cycle.leg_ranges],
             "leg_clearance_lower_bound": [float(v) for leg in cycle.legs for v in np.asarray(leg.clearance_lower_bound).reshape(4)],
+            "leg_regimes": [leg.regime for leg in cycle.legs],
+            "leg_removed_volume": [float(leg.removed_volume) for leg in cycle.legs],
             "cycle_margin": float(cycle.margin), "cycle_certified": bool(cycle.certified),
             "cycle_message": cycle.message, "set_id": set_id or ""}
 
@@ -170,9 +172,11 @@ def msg_to_cycle(msg):
                        f"leg_last {last[:5]}..., {len(samples)} cycle samples)")
     clear = np.array(msg.leg_clearance_lower_bound, dtype=np.float64)
     clear = clear.reshape(n, 4) if clear.size == 4 * n else np.full((n, 4), np.nan)
+    regimes = list(msg.leg_regimes) if len(msg.leg_regimes) == n else [""] * n      # older publishers: none
+    volumes = list(msg.leg_removed_volume) if len(msg.leg_removed_volume) == n else [float("nan")] * n
     legs, first = [], 0
     for i, (phase, label, b) in enumerate(zip(msg.leg_phases, msg.leg_labels, last)):
-        legs.append(Leg(phase, label, samples[first:b + 1].copy(), clear[i].copy()))
+        legs.append(Leg(phase, label, samples[first:b + 1].copy(), clear[i].copy(), regimes[i], float(volumes[i])))
         first = b
     return MachiningCycle(names, legs, ProcessReach(), float(msg.cycle_margin), bool(msg.cycle_certified),
                           msg.cycle_message)

@@ -274,6 +274,16 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=Fal
                 print(f"    NOT TO THE TOLERANCE: {res.message[:300]}")
             print(f"    set {res.set_id}: {len(res.plan_ids)} electrode(s) {list(res.electrode_labels)}, "
                   f"designed in {res.planning_time:.1f} s")
+            for e in res.process:
+                print(f"    process {e.label:<12} {e.regime:<6} {e.condition_code:<5} {e.removed_volume:7.0f} mm^3 "
+                      f"[{e.removed_volume_lower:.0f}, {e.removed_volume_upper:.0f}]  eroding {e.eroding_time / 3600:5.2f} h"
+                      f"  frontal wear {e.frontal_wear:.3f} mm/channel: {e.electrodes_per_channel} per channel, "
+                      f"{e.electrodes_per_blisk} per blisk")
+            if res.process:
+                print(f"    process (model estimates, config/machine.yaml): {res.channel_removed_volume:.0f} mm^3 and "
+                      f"{res.channel_eroding_time / 3600:.2f} h eroding per channel, "
+                      f"{res.blisk_eroding_time / 3600:.1f} h for the blisk; Liu et al. 2024 took 4.07-4.25 h per "
+                      f"channel on another blisk and machine")
         set_doc = json.loads((pathlib.Path(res.export_path) / "set.json").read_text())
         delivered = next(c for c in set_doc["candidates"] if c["name"] == set_doc["delivered"])
         designs = {p["label"]: p for p in delivered["pieces"]}
@@ -297,7 +307,9 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=Fal
                     time.sleep(0.05)
                 trajectories.append((label, ex, received[-1]))
                 phases = ", ".join(f"{n} {t:.1f} s" for n, t in zip(ex.phase_names, ex.phase_start_times))
-                print(f"    {ex.point_count} points, {ex.duration:.1f} s; phases from: {phases}")
+                print(f"    {ex.point_count} points, {ex.duration:.1f} s ({ex.duration / 3600:.2f} h; generator on "
+                      f"{ex.eroding_time / 3600:.2f} h in {sorted(set(r for r in ex.regime_names if r))}); "
+                      f"phases from: {phases}")
                 if ex.next_electrode:
                     print(f"    then change the tool: {ex.next_electrode}")
         clearances = {}

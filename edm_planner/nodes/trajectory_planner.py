@@ -40,12 +40,13 @@ import json
 import os
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 from edm_planner_msgs.action import PlanElectrodeSet as PlanElectrodeSetAction
 from edm_planner_msgs.msg import (AxisPath, AxisPoint, BliskGeometry, ChannelPlan, PlanMetrics, PlanProgress,
                                   RoughingStatistics)
-from edm_planner_msgs.msg import ElectrodeSetCandidate
+from edm_planner_msgs.msg import ElectrodeProcess, ElectrodeSetCandidate
 from edm_planner_msgs.srv import PlanChannel, PlanElectrodeSet, PlanRoughing
 from geometry_msgs.msg import PoseArray
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -140,6 +141,28 @@ def roughing_options(request):
     radius, mu, allowance = given(request.tool_radius), given(request.safeguard_factor), given(request.allowance)
     return RoughingOptions(tool_radius=radius, mu=d.mu if mu is None else mu,
                            allowance=d.allowance if allowance is None else allowance)
+
+
+def fill_process(response, meta):
+    """The set's process figures (model estimates) from its record (a fresh design's or the store's)."""
+    delivered = next((c for c in meta.get("candidates", []) if c.get("name") == meta.get("delivered")), None)
+    pieces = (delivered or {}).get("pieces", [])
+    response.electrode_regimes = [p.get("regime", "finish") for p in pieces]
+    proc = (delivered or {}).get("process")
+    if not proc:
+        return
+    for e in proc["electrodes"]:
+        low, high = e["removed_volume_bracket_mm3"]
+        response.process.append(ElectrodeProcess(
+            label=e["label"], regime=e["regime"], condition_code=e["condition_code"],
+            removed_volume=float(e["removed_volume_mm3"]), removed_volume_lower=float(low),
+            removed_volume_upper=float(high), eroding_time=3600.0 * float(e["eroding_time_h"]),
+            wear_volume=float(e["wear_volume_mm3"]), frontal_area=float(e["frontal_area_mm2"]),
+            frontal_wear=float(e["frontal_wear_per_channel_mm"]),
+            electrodes_per_channel=int(e["electrodes_per_channel"]), electrodes_per_blisk=int(e["electrodes_per_blisk"])))
+    response.channel_removed_volume = float(proc["channel"]["removed_volume_mm3"])
+    response.channel_eroding_time = 3600.0 * float(proc["channel"]["eroding_time_h"])
+    response.blisk_eroding_time = 3600.0 * float(proc["blisk"]["eroding_time_h"])
 
 
 def electrode_set_options(request, design):
@@ -308,6 +331,12 @@ class TrajectoryPlannerNode(Node):
         self.declare_parameter("unknown_geometry_wait", 5.0)
         self.declare_parameter("frame_id", "blisk")
         self.declare_parameter("set_wait", 600.0)
+        self.declare_parameter("machine_file", "")
+        self.declare_parameter("volume_resolution", 0.5)
+        # the process section (regimes, wear) electrode sets are planned with: the machine file the axis bridge
+        # times them on (the same default); a bad file stops the node at start, with the key named
+        from ..machine.config import default_machine_path, load_machine
+        self.process = load_machine(self.get_parameter("machine_file").value or default_machine_path()).process
         self.store, self.store_error = declare_plan_store(self)
         self.geometries = {}
         self.latest = None
@@ -513,8 +542,12 @@ class TrajectoryPlannerNode(Node):
             raise EdmError(ErrorCode.INVALID_REQUEST,
                            f"channel must be in 0 .. {prepared.blisk.blade_count - 1}, got {request.channel}")
         designer = None
+        process = self.process
+        if request.single_regime:
+            process = replace(process, rough_and_finish=False)
+        resolution = float(self.get_parameter("volume_resolution").value)
         set_id, program_id = set_id_for(gid, request.channel, SetDesigner.machining_plan_options(
-            options, prepared.design, set_options), set_options, cycle_options)
+            options, prepared.design, set_options), set_options, cycle_options, process, resolution)
         found = self._stored_set(set_id)
         if found is not None:
             plans, meta = found
@@ -535,7 +568,8 @@ class TrajectoryPlannerNode(Node):
 
             cache = self.get_parameter("cache_dir").value or CACHE_ROOT
             designer = SetDesigner(prepared.geometry, prepared.field, options, set_options, cycle_options,
-                                   progress=progress, field_cache=(cache, gid), detail=detail)
+                                   progress=progress, field_cache=(cache, gid), detail=detail, process=process,
+                                   process_resolution=resolution)
             if job is not None:
                 job.attach(designer)
             # a cancelled design raises SetDesignCancelled here, before anything is stored (the plans, the set
@@ -564,6 +598,7 @@ class TrajectoryPlannerNode(Node):
         response.plan_ids = [p.plan_id for p in plans]
         response.electrode_labels = list(labels)
         response.metrics = [metrics_to_msg(p.metrics, p.cycle, p.removal) for p in plans]
+        fill_process(response, meta)
         if request.write_export:
             root = self.get_parameter("export_dir").value or os.path.join(
                 os.path.expanduser("~"), ".local", "share", "edm_planner", "plans")

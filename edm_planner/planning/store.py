@@ -599,7 +599,10 @@ def cycle_to_record(cycle):
     legs = cycle.legs
     meta = {"cycle": {"axis_names": list(cycle.axis_names), "phases": [leg.phase for leg in legs],
                       "labels": [leg.label for leg in legs], "reach": cycle.reach.to_dict(),
-                      "margin": float(cycle.margin), "certified": bool(cycle.certified), "message": cycle.message}}
+                      "margin": float(cycle.margin), "certified": bool(cycle.certified), "message": cycle.message,
+                      "regimes": [leg.regime for leg in legs],
+                      "removed_volume_mm3": [None if not np.isfinite(leg.removed_volume) else float(leg.removed_volume)
+                                             for leg in legs]}}
     arrays = {"cycle_leg_samples": np.vstack([np.asarray(leg.samples, dtype=np.float64) for leg in legs]),
               "cycle_leg_lengths": np.array([len(leg.samples) for leg in legs], dtype=np.int64),
               "cycle_min_clearance": np.vstack([np.asarray(leg.clearance_lower_bound, dtype=np.float64).reshape(4)
@@ -616,7 +619,10 @@ def cycle_from_record(meta, arrays):
         return None
     samples, lengths = arrays["cycle_leg_samples"], arrays["cycle_leg_lengths"]
     bounds = np.concatenate([[0], np.cumsum(lengths)])
-    legs = [Leg(phase, label, samples[a:b].copy(), arrays["cycle_min_clearance"][i].copy())
+    regimes = c.get("regimes") or [""] * len(c["phases"])              # records before the process model: none
+    volumes = c.get("removed_volume_mm3") or [None] * len(c["phases"])
+    legs = [Leg(phase, label, samples[a:b].copy(), arrays["cycle_min_clearance"][i].copy(), regimes[i],
+                float("nan") if volumes[i] is None else float(volumes[i]))
             for i, (phase, label, a, b) in enumerate(zip(c["phases"], c["labels"], bounds[:-1], bounds[1:]))]
     r = c["reach"]
     reach = ProcessReach(rotation_suction=r["rotation_suction_rad"], rotation_pressure=r["rotation_pressure_rad"],

@@ -1,0 +1,110 @@
+"""The EDM process of a designed set: roughing twins, their proof, removed volume, erosion time and wear.
+
+Runs once on the delivered candidate, after its finishing proof (:meth:`.electrode_set.SetDesigner.design`):
+
+1. with ``rough_and_finish`` (the default): a roughing twin of every piece (:mod:`.rough_finish`), its own
+   certified cycle, and the roughing proof (the removal simulation with the rough spark gap) with the
+   allowance it leaves; the twins become pieces of the set, machined first (``rough <label>``);
+2. the removed volume of every leg of every electrode in machining order, written onto the legs with
+   their regime (so the bridge erosion-times them), and the process report (:mod:`edm_planner.process.report`).
+
+A piece whose twin cannot be made (its finishing electrode is thinner somewhere than twice the twin's extra
+offset) or certified gets none and erodes its region alone at the finish regime; with no twin at all, or a
+roughing proof that overcuts, the set runs single-regime (the finishing electrodes erode everything at the
+finish regime). The notes say why.
+No rclpy.
+"""
+
+import copy
+import logging
+from dataclasses import replace
+
+import numpy as np
+
+from ..errors import EdmError
+from ..planning.planner import plan_id_for
+from ..process.report import ElectrodeRun, plan_process
+from .rough_finish import allowance_figures, axial_extent, rough_piece, rough_sweeps
+
+_log = logging.getLogger(__name__)
+
+
+def _rough_plan(piece, rp):
+    """The roughing twin's Plan: the finishing plan's feed with the twin's electrode, id and feed certificate."""
+    plan = copy.copy(piece.plan)
+    plan.plan_id = plan_id_for(plan.geometry_id, 0, plan.electrode_id, plan.options, rp.design)
+    plan.electrode_mesh = rp.electrode.mesh
+    plan.metrics = replace(plan.metrics, clearance_lower_bound=tuple(float(v) for v in rp.feed_clearance))
+    plan.cycle = rp.cycle
+    return plan
+
+
+def add_roughing(designer, candidate):
+    """Roughing twins of the candidate's pieces, proven: (twin pieces, notes).
+
+    A piece whose twin cannot be made (the finishing electrode is thinner than twice the extra offset
+    somewhere: the twin's design leaves no electrode) or certified gets none: it erodes its own region
+    alone, at the finish regime, and a note says why. No twin at all, or a roughing proof that overcuts:
+    ([], notes).
+    """
+    from .electrode_set import Piece
+    from .removal import corner_rounding_stock, simulate_removal
+
+    process = designer.process
+    twins, notes, twinned = [], [], []
+    for i, p in enumerate(candidate.pieces):
+        try:
+            rp = rough_piece(designer.blisk, designer.field, p, process, designer.cycle_options, designer._walls)
+        except EdmError as e:                         # e.g. an offset that leaves no electrode
+            notes.append(f"no roughing twin for {p.label}: {e.code.name}: {e.message}")
+            continue
+        if not rp.certified:
+            notes.append(f"no roughing twin for {p.label}: {rp.cycle.message}")
+            continue
+        twins.append(rp)
+        twinned.append(i)
+    if not twins:
+        return [], notes
+    report = simulate_removal(designer.blisk, rough_sweeps(twins), process.rough.spark_gap,
+                              tolerance=designer.options.tolerance, samples=designer._wall_samples)
+    corner = corner_rounding_stock(designer.blisk, designer._wall_samples, process.rough_electrode_gap)
+    ends = [x for rp in twins for x in (axial_extent(rp.design, rp.electrode_id) or ())]
+    allowance = allowance_figures(report, candidate.removal, process, designer.options.tolerance, twinned, corner,
+                                  ends)
+    candidate.rough_removal, candidate.allowance = report, allowance
+    if report.overcut_max > 0:
+        return [], notes + [f"the roughing proof overcuts by {report.overcut_max:.4f} mm"]
+    pieces = []
+    for i, rp in zip(twinned, twins):
+        p = candidate.pieces[i]
+        twin = Piece(rp.label, p.electrode_id, rp.design, _rough_plan(p, rp), rp.cycle,
+                     volume=float(rp.electrode.mesh.volume))
+        twin.regime = "rough"
+        pieces.append(twin)
+    return pieces, notes
+
+
+def add_process(designer, candidate, resolution=0.5):
+    """The process of the delivered candidate: roughing twins first (when configured), then the report.
+
+    Sets ``candidate.pieces`` (twins first), ``candidate.process`` (ProcessReport) and, with twins,
+    ``candidate.rough_removal`` and ``candidate.allowance``; returns the report.
+    """
+    process = designer.process
+    candidate.single_regime_reason = "" if process.rough_and_finish else "rough_and_finish is off"
+    for p in candidate.pieces:
+        p.regime = "finish"
+    if process.rough_and_finish:
+        twins, notes = add_roughing(designer, candidate)
+        candidate.roughing_notes = notes
+        for note in notes:
+            _log.warning("%s", note)
+        if twins:
+            candidate.pieces = twins + candidate.pieces
+        else:
+            candidate.single_regime_reason = "; ".join(notes) or "no roughing twin"
+    runs = [ElectrodeRun(p.label, p.regime, np.asarray(p.plan.electrode_mesh.vertices),
+                         np.asarray(p.plan.electrode_mesh.faces), np.asarray(p.plan.final_pose),
+                         tuple(p.plan.axis_names), p.cycle) for p in candidate.pieces]
+    candidate.process = plan_process(designer.blisk, runs, process, resolution=resolution)
+    return candidate.process
