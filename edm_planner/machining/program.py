@@ -319,7 +319,9 @@ def read_exported_cycle(export_dir, doc):
     names = tuple(section["axis_names"])
     try:
         rows = list(csv.reader(raw.decode().splitlines()))
-        body = np.array([[float(v) for v in r[2:]] for r in rows[1:]], dtype=np.float64).reshape(-1, len(names))
+        # phase, leg, the axes, then (since the process model) the leg's regime
+        body = np.array([[float(v) for v in r[2:2 + len(names)]] for r in rows[1:]],
+                        dtype=np.float64).reshape(-1, len(names))
     except (ValueError, IndexError, UnicodeDecodeError) as exc:
         raise EdmError(ErrorCode.FILE_ERROR, f"{path}: malformed: {exc}") from None
     legs = []
@@ -331,7 +333,9 @@ def read_exported_cycle(export_dir, doc):
         clear = leg.get("clearance_lower_bound_mm") or leg.get("min_clearance_lower_bound_mm") or {}
         low = np.array([np.nan if clear.get(s) is None else float(clear[s])
                         for s in ("suction", "pressure", "hub", "shroud")])
-        legs.append(Leg(leg["phase"], leg["label"], body[a:b + 1].copy(), low))
+        volume = leg.get("removed_volume_mm3")
+        legs.append(Leg(leg["phase"], leg["label"], body[a:b + 1].copy(), low, leg.get("regime", "") or "",
+                        np.nan if volume is None else float(volume)))
     if not legs or int(section["legs"][-1]["last"]) != len(body) - 1:
         raise EdmError(ErrorCode.FILE_ERROR, f"{path}: {len(body)} rows, plan.json's legs end elsewhere")
     r = section.get("reach") or {}

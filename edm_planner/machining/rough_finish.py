@@ -136,7 +136,7 @@ def rough_piece(blisk, field, piece, process, cycle_options, walls_cache=None):
         cycle.message = (f"the feed with the roughing electrode is not certified: at {cert.first_failure:.3f} of "
                          f"the path the {cert.failure_surface} clearance may fall below {safe:.3f} mm (the rough "
                          f"spark gap less the tolerance); " + cycle.message)
-    return RoughPiece(f"rough {piece.label}", piece.electrode_id, design, electrode, cycle,
+    return RoughPiece(f"rough-{piece.label}", piece.electrode_id, design, electrode, cycle,
                       np.asarray(cert.lower_bound, dtype=np.float64))
 
 

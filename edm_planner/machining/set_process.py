@@ -4,7 +4,7 @@ Runs once on the delivered candidate, after its finishing proof (:meth:`.electro
 
 1. with ``rough_and_finish`` (the default): a roughing twin of every piece (:mod:`.rough_finish`), its own
    certified cycle, and the roughing proof (the removal simulation with the rough spark gap) with the
-   allowance it leaves; the twins become pieces of the set, machined first (``rough <label>``);
+   allowance it leaves; the twins become pieces of the set, machined first (``rough-<label>``);
 2. the removed volume of every leg of every electrode in machining order, written onto the legs with
    their regime (so the bridge erosion-times them), and the process report (:mod:`edm_planner.process.report`).
 
@@ -34,7 +34,12 @@ def _rough_plan(piece, rp):
     plan = copy.copy(piece.plan)
     plan.plan_id = plan_id_for(plan.geometry_id, 0, plan.electrode_id, plan.options, rp.design)
     plan.electrode_mesh = rp.electrode.mesh
-    plan.metrics = replace(plan.metrics, clearance_lower_bound=tuple(float(v) for v in rp.feed_clearance))
+    # its own feed certificate; the exact re-check of every vertex at every sample (tens of seconds) is the
+    # finishing plan's only: NaN here, "not computed"
+    plan.metrics = replace(plan.metrics, clearance_lower_bound=tuple(float(v) for v in rp.feed_clearance),
+                           clearance_exact=(float("nan"),) * 4)
+    plan.message = (f"roughing twin of plan {piece.plan.plan_id}: its feed re-certified with the twin, clearance "
+                    f"lower bound {min(rp.feed_clearance):.4f} mm (certified)")
     plan.cycle = rp.cycle
     return plan
 

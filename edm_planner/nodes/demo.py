@@ -215,8 +215,9 @@ def _cycle_csv(path):
 
     with open(path) as f:
         rows = list(csv.reader(f))
-    names = [h.split("_")[0] for h in rows[0][2:]]
-    return names, np.array([[float(v) for v in r[2:]] for r in rows[1:]]), [r[0] for r in rows[1:]]
+    axes = [h for h in rows[0][2:] if h.endswith(("_mm", "_rad"))]      # then the leg's regime
+    names = [h.split("_")[0] for h in axes]
+    return names, np.array([[float(v) for v in r[2:2 + len(axes)]] for r in rows[1:]]), [r[0] for r in rows[1:]]
 
 
 def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=False):
@@ -277,8 +278,8 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=Fal
             for e in res.process:
                 print(f"    process {e.label:<12} {e.regime:<6} {e.condition_code:<5} {e.removed_volume:7.0f} mm^3 "
                       f"[{e.removed_volume_lower:.0f}, {e.removed_volume_upper:.0f}]  eroding {e.eroding_time / 3600:5.2f} h"
-                      f"  frontal wear {e.frontal_wear:.3f} mm/channel: {e.electrodes_per_channel} per channel, "
-                      f"{e.electrodes_per_blisk} per blisk")
+                      f"  wear {e.worst_face_wear:.3f} mm/channel on its worst face (limit {e.wear_limit:g} mm): "
+                      f"{e.electrodes_per_channel} per channel, {e.electrodes_per_blisk} per blisk")
             if res.process:
                 print(f"    process (model estimates, config/machine.yaml): {res.channel_removed_volume:.0f} mm^3 and "
                       f"{res.channel_eroding_time / 3600:.2f} h eroding per channel, "
@@ -354,7 +355,7 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=Fal
             surfaces = {label: msg_to_mesh(m).apply_transform(turn)
                         for label, m in zip(published.surface_labels, published.surfaces)}
             stock_png = pathlib.Path(res.export_path) / "stock.png"
-            for name in ("stock.png", "stock.glb"):           # the removal proof's pictures
+            for name in ("stock.png", "stock.glb", "process.png"):   # the removal proof, the process
                 if (stock_png.parent / name).exists():
                     shutil.copyfile(stock_png.parent / name, out_dir / name)
             export = read_plan(pathlib.Path(res.export_path) / label0)
@@ -381,10 +382,22 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=Fal
                   f"{100 * f['area_fraction_above_tolerance']:.2f} % of the area above "
                   f"({100 * (f['area_fraction_beyond_inherent'] or 0):.2f} % beyond the corner rounding), "
                   f"overcut {f['overcut_max_mm']:.4f} mm")
+        allowance = delivered.get("roughing_allowance")
+        if allowance:
+            shares = ", ".join(f"{k} {100 * v['share_within_band']:.1f} %" for k, v in allowance["surfaces"].items())
+            print(f"  roughing     allowance {allowance['allowance_mm']:g} +- {allowance['band_mm']:g} mm "
+                  f"{'uniform' if allowance['uniform'] else 'NOT uniform'} ({shares} of the judged area)")
+        for note in delivered.get("roughing_notes", []):
+            print(f"               {note[:160]}")
         for label, ex, _ in trajectories:
-            print(f"  {label:<12} cycle {ex.duration:.1f} s, {ex.point_count} points")
-        print(f"  written      {res.export_path} (set.json, stock.png, one export per electrode), "
-              f"{out_dir}/*.png, {out_dir}/channel.glb")
+            print(f"  {label:<12} cycle {ex.duration:.1f} s = {ex.duration / 3600:.2f} h (generator on "
+                  f"{ex.eroding_time / 3600:.2f} h, {ex.removed_volume:.0f} mm^3), {ex.point_count} points")
+        if res.process:
+            print(f"  process      {res.channel_eroding_time / 3600:.2f} h eroding per channel, "
+                  f"{res.blisk_eroding_time / 3600:.1f} h for the blisk (model estimates, config/machine.yaml; "
+                  f"Liu et al. 2024: 4.07-4.25 h per channel on another blisk); process.png")
+        print(f"  written      {res.export_path} (set.json, stock.png, process.png, one export per electrode), "
+              f"{out_dir}/*.png (process.png: time and wear), {out_dir}/channel.glb")
     finally:
         executor.shutdown()
         node.destroy_node()

@@ -159,6 +159,7 @@ def fill_process(response, meta):
             removed_volume_upper=float(high), eroding_time=3600.0 * float(e["eroding_time_h"]),
             wear_volume=float(e["wear_volume_mm3"]), frontal_area=float(e["frontal_area_mm2"]),
             frontal_wear=float(e["frontal_wear_per_channel_mm"]),
+            worst_face_wear=float(e["worst_face_wear_per_channel_mm"]), wear_limit=float(e["wear_limit_mm"]),
             electrodes_per_channel=int(e["electrodes_per_channel"]), electrodes_per_blisk=int(e["electrodes_per_blisk"])))
     response.channel_removed_volume = float(proc["channel"]["removed_volume_mm3"])
     response.channel_eroding_time = 3600.0 * float(proc["channel"]["eroding_time_h"])

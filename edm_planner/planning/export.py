@@ -117,15 +117,17 @@ def _axes_csv(axis_names, samples):
 
 
 def _cycle_csv(axis_names, cycle):
-    """The whole machining cycle, one row per sample, with its phase and leg (rest at every leg's ends)."""
+    """The whole machining cycle, one row per sample, with its phase and leg (rest at every leg's ends) and, last,
+    the discharge regime of the leg (the generator's, for the motion that ends at the row; '' : off)."""
     units = ",".join(f"{n}_{AXIS_UNITS[n]}" for n in axis_names)
-    rows = [f"phase,leg,{units}"]
+    rows = [f"phase,leg,{units},regime"]
     for i, (phase, label, a, b) in enumerate(cycle.leg_ranges):
         leg = cycle.legs[i].samples
+        regime = cycle.legs[i].regime
         for j, q in enumerate(leg):
             if i and j == 0:
                 continue                  # the rest sample shared with the previous leg
-            rows.append(f"{phase},{i}," + ",".join(repr(float(v)) for v in q))
+            rows.append(f"{phase},{i}," + ",".join(repr(float(v)) for v in q) + f",{regime}")
     return "\n".join(rows) + "\n"
 
 

@@ -49,7 +49,7 @@ class ElectrodeRun:
     Attributes
     ----------
     label : str
-        front, rear, main, ... (``rough front`` for a roughing electrode).
+        front, rear, main, ... (``rough-front`` for a roughing twin).
     regime : str
         The process model's regime it erodes in (rough, finish).
     vertices, faces : arrays
