@@ -328,3 +328,14 @@ def bench_speed():
 
 
 SUITES["speed"] = bench_speed
+
+
+def bench_process():
+    """Issue 25: removed-volume accuracy against resolution, and the process of each blisk's set
+    (``edm_planner.bench.process``)."""
+    from .process import bench_process as run
+
+    return run()
+
+
+SUITES["process"] = bench_process

@@ -64,8 +64,10 @@ def bench_electrode_set(blisks=BLISKS):
         g = load_geometry(BLISKS[name])
         field = FastChannelField(g.blisk, spacing=0.1, cache_dir=cache, cache_key=g.geometry_id)
         t = time.perf_counter()
-        result = SetDesigner(g, field, field_cache=(cache, g.geometry_id)).design(0)
+        result = SetDesigner(g, field, field_cache=(cache, g.geometry_id), process=machine.process).design(0)
         design_s = time.perf_counter() - t
+        from .process import DESIGNED
+        DESIGNED[name] = (g, result)                 # the process suite reuses it when it runs next
         entry = {"design_s": round(design_s, 1), "message": result.message[:600],
                  "candidates": {c.name: {"status": c.status, "reason": c.reason[:300],
                                          "certificate_vs_proof": c.truth} for c in result.candidates}}
@@ -78,6 +80,7 @@ def bench_electrode_set(blisks=BLISKS):
                                     "radial_reduction_mm": round(p.design.radial_reduction, 3),
                                     "volume_mm3": round(p.volume, 1)} for p in chosen.pieces]
             entry["removal"] = chosen.removal.to_dict()
+            entry["process_s"] = round(chosen.process.seconds, 1) if chosen.process is not None else None
             per_channel, whole = cycle_times(result.plans, g.blisk.blade_count, g.blisk.pitch, machine,
                                              labels=[p.label for p in chosen.pieces])
             entry["cycle_s_per_channel"] = {k: round(v, 1) for k, v in per_channel.items()}

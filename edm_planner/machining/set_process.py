@@ -70,8 +70,10 @@ def add_roughing(designer, candidate):
         twinned.append(i)
     if not twins:
         return [], notes
+    pool = designer._workers_pool()              # the sizing workers share out the wall samples, as in prove()
     report = simulate_removal(designer.blisk, rough_sweeps(twins), process.rough.spark_gap,
-                              tolerance=designer.options.tolerance, samples=designer._wall_samples)
+                              tolerance=designer.options.tolerance, samples=designer._wall_samples,
+                              executor=pool, parts=designer.workers if pool is not None else 1)
     corner = corner_rounding_stock(designer.blisk, designer._wall_samples, process.rough_electrode_gap)
     ends = [x for rp in twins for x in (axial_extent(rp.design, rp.electrode_id) or ())]
     allowance = allowance_figures(report, candidate.removal, process, designer.options.tolerance, twinned, corner,
