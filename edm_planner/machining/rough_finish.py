@@ -154,7 +154,8 @@ def rough_sweeps(pieces):
     return out
 
 
-def allowance_figures(rough_report, finish_report, process, tolerance, twinned=None, corner=None, ends=()):
+def allowance_figures(rough_report, finish_report, process, tolerance, twinned=None, corner=None, ends=(),
+                      samples=None):
     """How uniform the allowance the roughing electrodes leave is, per wall (mm, shares of the sampled area).
 
     The ideal twin (the channel shrunk by its offset G = rough gap + allowance a, eroding the rough gap)
@@ -164,7 +165,8 @@ def allowance_figures(rough_report, finish_report, process, tolerance, twinned=N
     tolerance with a finishing electrode that has a twin (``twinned``: indices of the finishing sweeps
     with one; None: all), away from the twins' axial ends (``ends``, x [mm]: within the twin's offset plus
     the extra offset of an end the walls keep more stock, which the finishing electrode takes): uniform
-    when |stock - stock_ideal| <= band on >= 99 % of that area and nothing is overcut anywhere (stock >= 0). Returns a dict per surface (the stock's min and max there, the
+    when |stock - stock_ideal| <= band on >= 99 % of that area and nothing is overcut anywhere (stock >= 0).
+    ``samples`` (:func:`~.removal.wall_samples`) weights the shares by area; without, by sample count. Returns a dict per surface (the stock's min and max there, the
     largest allowance the finishing electrode meets, the share within the band, the smallest stock
     anywhere, the verdict) and for the set.
     """
@@ -183,8 +185,9 @@ def allowance_figures(rough_report, finish_report, process, tolerance, twinned=N
         for x in ends:                    # u is the axial position x on every wall map
             where &= np.abs(np.asarray(fin.u, float) - x) > strip
         within = where & (np.abs(np.where(valid, rs, 0.0) - ideal) <= band)
-        # shares of the samples (the sample grid is graded only in thin strips at the edges)
-        share = float(within.sum() / where.sum()) if where.any() else float("nan")
+        w = (np.ones(rs.shape) if samples is None
+             else np.asarray(samples[name].weights, float).reshape(rs.shape))          # area weights
+        share = float(w[within].sum() / w[where].sum()) if where.any() and w[where].sum() > 0 else float("nan")
         overcut = float(np.nanmin(rs)) if valid.any() else float("nan")
         good = overcut >= 0.0 and (not where.any() or share >= 0.99)
         ok &= good

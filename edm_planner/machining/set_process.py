@@ -77,7 +77,7 @@ def add_roughing(designer, candidate):
     corner = corner_rounding_stock(designer.blisk, designer._wall_samples, process.rough_electrode_gap)
     ends = [x for rp in twins for x in (axial_extent(rp.design, rp.electrode_id) or ())]
     allowance = allowance_figures(report, candidate.removal, process, designer.options.tolerance, twinned, corner,
-                                  ends)
+                                  ends, designer._wall_samples)
     candidate.rough_removal, candidate.allowance = report, allowance
     if report.overcut_max > 0:
         return [], notes + [f"the roughing proof overcuts by {report.overcut_max:.4f} mm"]
