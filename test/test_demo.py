@@ -79,6 +79,21 @@ def test_demo_runs_end_to_end_and_writes_its_pictures(tmp_path):
     assert set(regimes) <= {"rough", "finish"} and regimes == sorted(regimes, key=lambda r: r != "rough"), \
         f"roughing twins first, then the finishing electrodes: {regimes}"
     assert doc["process"]["plot"] == "process.png" and len(doc["process"]["electrodes"]) == len(regimes)
+    # one truth for the times: each export (plan.json's legs and cycle.csv) times its cycle as the bridge did
+    # from the plan store (the same regimes and removed volumes, timed on the same machine file)
+    from edm_planner.cli import _exported_plan
+    from edm_planner.machine.config import default_machine_path, load_machine
+    from edm_planner.machine.trajectory import time_run
+    from edm_planner.machining.program import program_runs
+
+    machine = load_machine(default_machine_path())
+    printed = {line.split()[0]: float(line.split(" cycle ")[1].split(" s")[0]) for line in durations}
+    for e in doc["electrodes"]:
+        plan, _ = _exported_plan(set_dir / e["export"])
+        assert all(leg.regime in ("", e["regime"]) for leg in plan.cycle.legs)
+        assert any(leg.regime for leg in plan.cycle.legs), f"{e['label']}: its cutting legs carry their regime"
+        duration = time_run(program_runs([(plan.plan_id, 0)], {plan.plan_id: plan})[0].legs, machine).duration
+        assert duration == pytest.approx(printed[e["label"]], abs=0.06), e["label"]
     # no node process outlives the demo
     assert processes_of(env["HOME"]) == []
 

@@ -3,9 +3,9 @@
 Two parts:
 
 * **closed forms** -- a box electrode (20 x 6 x 12 mm, gap 0.25 mm, tilted 7 deg so that no face lines up with
-  the voxels) plunged 8 mm into a block, and the same box turned 30 deg about an axis 110 mm away (an annular
-  sector): the exact volume against the estimate and the certified bracket at resolutions 1, 0.5, 0.25 and
-  0.125 mm, with the seconds each took;
+  the voxels) plunged 8 mm into a block, and a cylinder electrode (radius 3 mm, 20 mm long, gap 0.25 mm)
+  turned 30 deg about a parallel axis 110 mm away: the exact volume against the estimate and the certified
+  bracket at resolutions 1, 0.5, 0.25 and 0.125 mm, with the seconds each took;
 * **blisks** -- the delivered electrode set of channel 0 of each configured blisk (designed with the machine's
   process section, or taken from the ``electrode_set`` suite's run when it ran first in the same process):
   the channel's removed volume, its bracket and the seconds at resolutions 1, 0.5 and 0.25 mm, beside the
@@ -70,25 +70,24 @@ def closed_forms(resolutions=RESOLUTIONS):
         p[2, 3] = z
         poses.append(p)
     plunge = [Cut("plunge", np.asarray(box.vertices), np.asarray(box.faces), np.array(poses), g)]
-    # rotation: the grown box K (centre 110 mm from the X axis, b radial, c tangential) turned 30 deg about
-    # X. On each circle about the axis the sweep covers K's arc plus the turn, so V = V(K) + turn *
-    # integral over x of (r_max(x)^2 - r_min(x)^2) / 2, r_min/r_max the radial extent of K's section at x
-    # (a rounded b x c rectangle, rounding rho(x) = g inside the box's x range, sqrt(g^2 - (|x| - a/2)^2)
-    # beyond); r_max by a dense search over the rounded corner; the x integral by the trapezoid rule on
-    # 40 001 points (its error far below the voxel errors measured).
-    r0, turn = 110.0, math.radians(30.0)
-    ring = trimesh.creation.annulus(r_min=90.0, r_max=130.0, height=60.0)
-    ring.apply_transform(_rot(1, math.pi / 2))               # its axis along X
+    # rotation: a cylinder electrode (radius R, length L, its axis parallel to X, 110 mm from it) turned 30
+    # deg about X. Every section of the grown cylinder across X is a disk of radius rho(x) (R + g along the
+    # cylinder, R + sqrt(g^2 - s^2) over its rounded ends, s beyond an end) centred r0 from the axis, which a
+    # circle about the axis meets in one arc; the section sweeps the disk plus the annulus sector of the
+    # turn: V = integral of (pi rho^2 + 2 r0 turn rho) dx = pi (R+g)^2 L + 2 pi (R^2 g + pi R g^2 / 2
+    # + 2 g^3 / 3) + 2 r0 turn (L (R + g) + 2 R g + pi g^2 / 2). (A box's far corners would make two arcs.)
+    R, L, r0, turn = 3.0, 20.0, 110.0, math.radians(30.0)
+    cyl = trimesh.creation.cylinder(radius=R, height=L, sections=256)
+    cyl.apply_transform(_rot(1, math.pi / 2))                 # its axis along X
+    ring = trimesh.creation.annulus(r_min=90.0, r_max=130.0, height=60.0, sections=256)
+    ring.apply_transform(_rot(1, math.pi / 2))
     centre = np.eye(4)
     centre[1, 3] = r0
     rposes = np.array([_rot(0, t) @ centre for t in np.linspace(0.0, turn, 601)])
-    rot = [Cut("rotation", np.asarray(box.vertices), np.asarray(box.faces), rposes, g)]
-    xs = np.linspace(-a / 2 - g, a / 2 + g, 40001)
-    rho = np.where(np.abs(xs) <= a / 2, g, np.sqrt(np.maximum(g * g - (np.abs(xs) - a / 2) ** 2, 0.0)))
-    alpha = np.linspace(0.0, math.pi / 2, 2001)[None]
-    r_max = np.hypot(r0 + b / 2 + rho[:, None] * np.cos(alpha), c / 2 + rho[:, None] * np.sin(alpha)).max(axis=1)
-    r_min = r0 - b / 2 - rho
-    exact_rotation = _box_volume_grown(a, b, c, g) + turn * np.trapezoid((r_max ** 2 - r_min ** 2) / 2, xs)
+    rot = [Cut("rotation", np.asarray(cyl.vertices), np.asarray(cyl.faces), rposes, g)]
+    exact_rotation = (math.pi * (R + g) ** 2 * L + 2 * math.pi * (R * R * g + math.pi * R * g * g / 2 + 2 * g ** 3 / 3)
+                      + 2 * r0 * turn * (L * (R + g) + 2 * R * g + math.pi * g * g / 2))
+    # the 256-gon's section is smaller than the disk by about R^2 (pi - 256 sin(pi / 128) / 2) = 0.009 mm^2
     cases = {"plunge": (MeshBlank(np.asarray(block.vertices), np.asarray(block.faces)), plunge, exact_plunge),
              "rotation": (MeshBlank(np.asarray(ring.vertices), np.asarray(ring.faces)), rot, exact_rotation)}
     out = {}

@@ -402,7 +402,9 @@ def removed_volumes(blank, cuts, resolution=0.5, sdf_spacing=None, pose_travel=N
     resolution : float
         Voxel size [mm].
     sdf_spacing : float, optional
-        Spacing of the electrode distance grids [mm] (default resolution / 2).
+        Spacing of the electrode distance grids [mm]. Default: the resolution (measured on the default
+        blisk's set at 0.5 mm voxels: grids of 0.5, 0.25 and 0.125 mm change the estimate by 0.5 % and cost
+        1x, 2x and 7x the time; the voxel size is what sets the estimate's accuracy).
     pose_travel : float, optional
         Largest move of an electrode point between consecutive poses [mm], for every cut;
         default: computed per cut (:func:`pose_travel_of`).
@@ -413,7 +415,7 @@ def removed_volumes(blank, cuts, resolution=0.5, sdf_spacing=None, pose_travel=N
     """
     t_start = time.perf_counter()
     res = _positive("resolution", resolution)
-    h = res / 2 if sdf_spacing is None else _positive("sdf_spacing", sdf_spacing)
+    h = res if sdf_spacing is None else _positive("sdf_spacing", sdf_spacing)
     if pose_travel is not None:
         pose_travel = _positive("pose_travel", pose_travel, zero_ok=True)
     if not cuts:
