@@ -68,6 +68,9 @@ def _parser():
                    help="an electrode set without roughing twins: the finishing electrodes erode everything")
     q.add_argument("--volume-resolution", type=float, default=0.5, metavar="MM",
                    help="voxel size of the removed-volume field of an electrode set (default 0.5)")
+    q.add_argument("--stock-mesh", metavar="FILE.stl",
+                   help="pre-machined stock (closed mesh, workpiece frame, mm) the electrodes start from, instead "
+                        "of the solid channel")
     _store_argument(q)
     q.add_argument("--replan", action="store_true", help="plan anew even if the store has the plan of this request")
     _progress_argument(q)
@@ -347,12 +350,15 @@ def _plan_set(args, geometry, options, store, progress, out, err):
 
     from .machine.config import default_machine_path, load_machine
 
+    from .process.volume import load_stock_mesh
+
     process = load_machine(args.machine or default_machine_path()).process
     if args.single_regime:
         process = replace(process, rough_and_finish=False)
+    stock = load_stock_mesh(args.stock_mesh) if args.stock_mesh else None
     designer = SetDesigner(geometry, field, options, SetOptions(time_budget=max(args.time_budget, 60.0) * 15),
                            field_cache=(args.cache_dir, geometry.geometry_id), detail=on_step, process=process,
-                           process_resolution=args.volume_resolution)
+                           process_resolution=args.volume_resolution, stock_mesh=stock)
     result = designer.design(args.channel)
     not_kept = ""
     try:

@@ -121,3 +121,24 @@ def test_silhouettes_and_face_wear_of_a_box():
     assert depth["front"] == pytest.approx(100 * 0.15 / 24.0, rel=0.01)
     assert depth["face -y"] == pytest.approx(30 * 0.15 / 60.0, rel=0.01)
     assert areas["front"] == pytest.approx(24.0, rel=0.01)
+
+
+def test_a_stock_mesh_is_read_checked_and_named_by_its_content(tmp_path):
+    from edm_planner.errors import EdmError, ErrorCode
+    from edm_planner.process.volume import MeshBlank, load_stock_mesh
+
+    box = trimesh.creation.box((30.0, 20.0, 10.0))
+    box.export(tmp_path / "stock.stl")
+    blank, digest = load_stock_mesh(tmp_path / "stock.stl")
+    assert isinstance(blank, MeshBlank) and len(blank.faces) == 12 and len(digest) == 64
+    assert load_stock_mesh(tmp_path / "stock.stl")[1] == digest, "the same file, the same digest (set id)"
+    open_box = box.copy()
+    open_box.update_faces(np.arange(len(box.faces)) != 0)       # one triangle missing: not a solid
+    open_box.export(tmp_path / "open.stl")
+    (tmp_path / "junk.stl").write_bytes(b"solid nothing\nthis is not an stl\n")
+    for name, code, words in (("missing.stl", ErrorCode.FILE_ERROR, "No such file"),
+                              ("open.stl", ErrorCode.INVALID_GEOMETRY, "closed solid"),
+                              ("junk.stl", ErrorCode.FILE_ERROR, "")):
+        with pytest.raises(EdmError) as exc:
+            load_stock_mesh(tmp_path / name)
+        assert exc.value.code == code and words in exc.value.message, exc.value.message

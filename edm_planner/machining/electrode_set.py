@@ -213,11 +213,14 @@ class ElectrodeSet:
 EDGE_INSETS = (0.0005, 0.001, 0.002, 0.005)
 
 
-def set_id_for(geometry_id, channel, plan_options, options, cycle_options, process=None, process_resolution=0.5):
+def set_id_for(geometry_id, channel, plan_options, options, cycle_options, process=None, process_resolution=0.5,
+               stock_sha256=""):
     """Deterministic id of a set request (equal requests give equal sets): (set id, whole-blisk program id)."""
     parts = ["electrode_set", geometry_id, int(channel), asdict(plan_options), asdict(options), asdict(cycle_options)]
     if process is not None:                      # the process model changes the set (twins, leg regimes)
         parts += [process.to_dict(), float(process_resolution)]
+    if stock_sha256:                             # and so does the stock it starts from
+        parts.append(stock_sha256)
     key = json.dumps(parts, sort_keys=True, default=str)
     set_id = hashlib.sha256(key.encode()).hexdigest()[:16]
     return set_id, hashlib.sha256(f"blisk_program/{set_id}".encode()).hexdigest()[:16]
@@ -294,10 +297,12 @@ class SetDesigner:
     """
 
     def __init__(self, geometry, field, plan_options=None, options=None, cycle_options=None, progress=None,
-                 field_cache=None, workers=None, detail=None, process=None, process_resolution=0.5):
+                 field_cache=None, workers=None, detail=None, process=None, process_resolution=0.5,
+                 stock_mesh=None):
         self.geometry = geometry
         self.process = process           # ProcessModel: roughing twins, removed volume, erosion time (None: none)
         self.process_resolution = float(process_resolution)
+        self.stock_mesh, self.stock_sha256 = stock_mesh if stock_mesh is not None else (None, "")
         self.blisk = geometry.blisk
         self.field = field
         self.options = options or SetOptions()
@@ -553,7 +558,7 @@ class SetDesigner:
         result = ElectrodeSet(self.geometry.geometry_id, int(channel), cands)
         result.set_id, result.program_id = set_id_for(self.geometry.geometry_id, channel, self.plan_options,
                                                       self.options, self.cycle_options, self.process,
-                                                      self.process_resolution)
+                                                      self.process_resolution, self.stock_sha256)
         if accepted:
             best = min(accepted, key=lambda c: (c.electrode_count, -c.volume, c.cycle_travel))
             best.status = "chosen"

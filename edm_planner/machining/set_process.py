@@ -113,5 +113,6 @@ def add_process(designer, candidate, resolution=0.5):
     runs = [ElectrodeRun(p.label, p.regime, np.asarray(p.plan.electrode_mesh.vertices),
                          np.asarray(p.plan.electrode_mesh.faces), np.asarray(p.plan.final_pose),
                          tuple(p.plan.axis_names), p.cycle) for p in candidate.pieces]
-    candidate.process = plan_process(designer.blisk, runs, process, resolution=resolution)
+    candidate.process = plan_process(designer.blisk, runs, process, resolution=resolution,
+                                     stock_mesh=getattr(designer, "stock_mesh", None))
     return candidate.process

@@ -86,7 +86,6 @@ plan_store : str
 """
 
 import math
-import os
 import threading
 import time
 from collections import OrderedDict
@@ -104,7 +103,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from ..errors import EdmError, ErrorCode
 from ..geometry.frames import is_rigid, pose_difference, rotation_about_x
-from ..machine.config import LINEAR, default_machine_path, load_machine
+from ..machine.config import LINEAR, load_machine
 from ..machine.nc import nc_program, trajectory_csv
 from ..machine.trajectory import check_samples_travel, plan_trajectory, time_run
 from ..machining.program import PlanCycle, program_runs
@@ -113,7 +112,7 @@ from ..planning.certificate import certificate_digest, check_digest
 from ..planning.store import PlanStoreError
 from .conversions import error_code, msg_to_cycle
 from .geometry_loader import LATCHED
-from .runtime import answer, declare_plan_store, end_canceled, spin_node
+from .runtime import answer, declare_plan_store, default_machine_file, end_canceled, spin_node
 
 
 def duration_msg(seconds):
@@ -213,7 +212,7 @@ class AxisBridgeNode(Node):
         self.declare_parameter("reference_tolerance_linear", 0.001)
         self.declare_parameter("reference_tolerance_rotary", 1e-6)
         self.store, self.store_error = declare_plan_store(self)
-        path = self.get_parameter("machine_file").value or _default_machine_file()
+        path = self.get_parameter("machine_file").value or default_machine_file()
         self.machine = load_machine(path)   # a bad machine file stops the node at start, with the key named
         self.get_logger().info(f"machine {self.machine.name!r} from {path}: joints "
                                f"{[a.joint for a in self.machine.axes.values()]}")
@@ -578,15 +577,6 @@ def fill_regimes(response, arrays):
     response.removed_volume = float(sum(volumes)) if volumes else float("nan")
 
 
-def _default_machine_file():
-    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-    try:
-        path = os.path.join(get_package_share_directory("edm_planner"), "config", "machine.yaml")
-        if os.path.exists(path):
-            return path
-    except PackageNotFoundError:  # not installed in an ament prefix: the source tree's config
-        pass
-    return str(default_machine_path())
 
 
 def main(args=None):

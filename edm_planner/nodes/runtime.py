@@ -104,3 +104,20 @@ def declare_plan_store(node):
     except PlanStoreError as exc:
         node.get_logger().error(f"plan store not used: {exc.message}")
         return None, exc.message
+
+
+def default_machine_file():
+    """The machine YAML the nodes use when none is named: the installed share directory's, else the source
+    tree's (the axis bridge times on it, the planner plans the process with it: the same file)."""
+    import os
+
+    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+
+    from ..machine.config import default_machine_path
+    try:
+        path = os.path.join(get_package_share_directory("edm_planner"), "config", "machine.yaml")
+        if os.path.exists(path):
+            return path
+    except PackageNotFoundError:  # not installed in an ament prefix: the source tree's config
+        pass
+    return str(default_machine_path())

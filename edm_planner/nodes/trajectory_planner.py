@@ -73,7 +73,7 @@ from ..planning.store import (PlanStoreError, cycle_from_record, plan_to_stored,
 from ..roughing import RoughingOptions, plan_roughing, roughing_plan_id
 from .conversions import cycle_fields, design_override, error_code, machining_figures, matrix_to_pose
 from .geometry_loader import LATCHED
-from .runtime import answer, declare_plan_store, end_canceled, spin_node
+from .runtime import answer, declare_plan_store, default_machine_file, end_canceled, spin_node
 
 def plan_options(settings, default_budget):
     """PlannerSettings message -> PlanOptions (NaN / 0 / empty take the defaults)."""
@@ -334,10 +334,15 @@ class TrajectoryPlannerNode(Node):
         self.declare_parameter("set_wait", 600.0)
         self.declare_parameter("machine_file", "")
         self.declare_parameter("volume_resolution", 0.5)
+        self.declare_parameter("stock_mesh", "")
         # the process section (regimes, wear) electrode sets are planned with: the machine file the axis bridge
         # times them on (the same default); a bad file stops the node at start, with the key named
-        from ..machine.config import default_machine_path, load_machine
-        self.process = load_machine(self.get_parameter("machine_file").value or default_machine_path()).process
+        from ..machine.config import load_machine
+        self.process = load_machine(self.get_parameter("machine_file").value or default_machine_file()).process
+        # a pre-machined stock the electrodes start from ('' : the solid channel); a bad file stops the node
+        from ..process.volume import load_stock_mesh
+        stock = self.get_parameter("stock_mesh").value
+        self.stock_mesh = load_stock_mesh(stock) if stock else None
         self.store, self.store_error = declare_plan_store(self)
         self.geometries = {}
         self.latest = None
@@ -548,7 +553,8 @@ class TrajectoryPlannerNode(Node):
             process = replace(process, rough_and_finish=False)
         resolution = float(self.get_parameter("volume_resolution").value)
         set_id, program_id = set_id_for(gid, request.channel, SetDesigner.machining_plan_options(
-            options, prepared.design, set_options), set_options, cycle_options, process, resolution)
+            options, prepared.design, set_options), set_options, cycle_options, process, resolution,
+            self.stock_mesh[1] if self.stock_mesh else "")
         found = self._stored_set(set_id)
         if found is not None:
             plans, meta = found
@@ -570,7 +576,7 @@ class TrajectoryPlannerNode(Node):
             cache = self.get_parameter("cache_dir").value or CACHE_ROOT
             designer = SetDesigner(prepared.geometry, prepared.field, options, set_options, cycle_options,
                                    progress=progress, field_cache=(cache, gid), detail=detail, process=process,
-                                   process_resolution=resolution)
+                                   process_resolution=resolution, stock_mesh=self.stock_mesh)
             if job is not None:
                 job.attach(designer)
             # a cancelled design raises SetDesignCancelled here, before anything is stored (the plans, the set

@@ -34,7 +34,7 @@ import numpy as np
 
 from ..errors import EdmError, ErrorCode
 from ..machine.kinematics import axis_poses
-from .volume import AnnulusBlank, Cut, MeshBlank, removed_volumes
+from .volume import AnnulusBlank, Cut, removed_volumes
 
 _log = logging.getLogger(__name__)
 
@@ -126,6 +126,7 @@ class ProcessReport:
     accuracy: str                     # what the volume bracket covers
     process: object                   # ProcessModel
     seconds: float                    # computing time
+    blank: str = "the solid ring between hub and shroud over the blades' axial range"
 
     @property
     def blisk_eroding_time(self):
@@ -144,7 +145,7 @@ class ProcessReport:
                           "electrodes_needed": {e.label: e.electrodes_per_blisk for e in self.electrodes}},
                 "reference": "Liu et al. 2024: 4.07 to 4.25 h per channel, 249.3 h for a 60-channel shrouded "
                              "blisk (another blisk and machine: set beside, not compared)",
-                "volume_resolution_mm": self.resolution, "volume_accuracy": self.accuracy,
+                "volume_resolution_mm": self.resolution, "volume_accuracy": self.accuracy, "blank": self.blank,
                 "wear_compensation": (
                     {e.label: {"depth_added_per_channel_mm": round(e.frontal_wear, 4)} for e in self.electrodes}
                     if self.process.wear_compensation else None),
@@ -298,8 +299,9 @@ def plan_process(blisk, runs, process, resolution=0.5, stock_mesh=None, progress
     process : ProcessModel
     resolution : float
         Voxel size of the volume field [mm].
-    stock_mesh : (vertices, faces), optional
-        A pre-machined stock (closed mesh, W frame) instead of the solid channel.
+    stock_mesh : MeshBlank, optional
+        A pre-machined stock (closed mesh, W frame; :func:`~.volume.load_stock_mesh`) instead of the solid
+        channel.
     progress : callable, optional
         ``progress(message)``.
 
@@ -317,7 +319,7 @@ def plan_process(blisk, runs, process, resolution=0.5, stock_mesh=None, progress
     cuts, where = _cuts(runs, process)
     if progress:
         progress(f"removed volume of {len(cuts)} legs at {resolution:g} mm")
-    blank = AnnulusBlank.from_blisk(blisk) if stock_mesh is None else MeshBlank(*stock_mesh)
+    blank = AnnulusBlank.from_blisk(blisk) if stock_mesh is None else stock_mesh
     result = removed_volumes(blank, cuts, resolution=resolution)
     for run in runs:
         for leg in run.cycle.legs:
@@ -347,5 +349,7 @@ def plan_process(blisk, runs, process, resolution=0.5, stock_mesh=None, progress
                            channel_cavity_volume(blisk), resolution, result.total_lower, result.total_upper,
                            result.to_dict().get("accuracy", ""), process,
                            time.perf_counter() - t0)
+    if stock_mesh is not None:
+        report.blank = f"a pre-machined stock mesh ({len(stock_mesh.faces)} triangles)"
     _log.info("%s", report.summary())
     return report

@@ -352,6 +352,45 @@ def _positive(name, value, zero_ok=False):
     return v
 
 
+#: largest stock mesh file read [bytes]
+MAX_STOCK_BYTES = 200_000_000
+
+
+def load_stock_mesh(path):
+    """A pre-machined stock (STL, OBJ, PLY, ... in the workpiece frame, mm) as a MeshBlank, and its SHA-256.
+
+    FILE_ERROR: unreadable, too large or not a mesh; INVALID_GEOMETRY: not one closed, outward-oriented
+    solid (the material is what lies inside it), or non-finite coordinates.
+    """
+    import pathlib
+
+    import trimesh
+
+    path = pathlib.Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise EdmError(ErrorCode.FILE_ERROR, f"stock mesh {path}: {exc.strerror or exc}") from None
+    if len(data) > MAX_STOCK_BYTES:
+        raise EdmError(ErrorCode.FILE_ERROR, f"stock mesh {path}: larger than {MAX_STOCK_BYTES} bytes")
+    try:
+        mesh = trimesh.load(trimesh.util.wrap_as_stream(data), file_type=path.suffix.lstrip(".").lower() or "stl",
+                            force="mesh", process=True)
+    except Exception as exc:                 # trimesh raises many kinds on a broken file
+        raise EdmError(ErrorCode.FILE_ERROR, f"stock mesh {path}: not a readable mesh: {exc}") from None
+    if not isinstance(mesh, trimesh.Trimesh) or not len(mesh.faces):
+        raise EdmError(ErrorCode.FILE_ERROR, f"stock mesh {path}: no triangles")
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise EdmError(ErrorCode.INVALID_GEOMETRY, f"stock mesh {path}: NaN or infinite coordinates")
+    if not mesh.is_watertight or not mesh.is_winding_consistent or mesh.volume <= 0:
+        raise EdmError(ErrorCode.INVALID_GEOMETRY,
+                       f"stock mesh {path}: must be one closed solid with outward normals (watertight "
+                       f"{mesh.is_watertight}, consistent winding {mesh.is_winding_consistent}, volume "
+                       f"{mesh.volume:.6g} mm^3)")
+    return MeshBlank(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)), \
+        hashlib.sha256(data).hexdigest()
+
+
 def _check_blank(blank):
     if isinstance(blank, MeshBlank):
         _check_mesh("blank", blank.vertices, blank.faces)
