@@ -130,7 +130,7 @@ def process_plot(report, path):
     labels = [e.label for e in electrodes]
     phases = sorted({p for e in electrodes for p, *_ in e.legs})
     colours = {"rough": "tab:red", "finish": "tab:blue"}
-    fig, (ax_t, ax_w) = plt.subplots(1, 2, figsize=(11, 0.6 * len(labels) + 2.2))
+    fig, (ax_t, ax_w) = plt.subplots(1, 2, figsize=(13, 0.6 * len(labels) + 2.2))
     y = np.arange(len(labels))
     left = np.zeros(len(labels))
     for k, phase in enumerate(phases):
@@ -153,6 +153,7 @@ def process_plot(report, path):
         ax_w.plot([e.wear_limit] * 2, [yi - 0.4, yi + 0.4], color="k", ls="--", lw=1)
         ax_w.text(e.worst_face_wear, yi, f" {e.electrodes_per_channel}/channel, {e.electrodes_per_blisk}/blisk "
                                          f"(limit {e.wear_limit:g} mm, dashed)", va="center", fontsize=7)
+    ax_w.set_xlim(0.0, 2.2 * max(wear + [e.wear_limit for e in electrodes]))     # room for the counts
     ax_w.set_yticks(y, labels)
     ax_w.invert_yaxis()
     ax_w.set_xlabel("wear of the worst face per channel [mm]")
