@@ -320,7 +320,7 @@ def plan_process(blisk, runs, process, resolution=0.5, stock_mesh=None, progress
     if progress:
         progress(f"removed volume of {len(cuts)} legs at {resolution:g} mm")
     blank = AnnulusBlank.from_blisk(blisk) if stock_mesh is None else stock_mesh
-    result = removed_volumes(blank, cuts, resolution=resolution)
+    result = removed_volumes(blank, cuts, resolution=resolution, max_travel=resolution / 4)
     for run in runs:
         for leg in run.cycle.legs:
             leg.removed_volume, leg.regime = 0.0, ""          # retraced and non-cutting legs remove nothing
