@@ -222,3 +222,22 @@ def test_annulus_from_blisk(default_blisk):
     xs = np.linspace(ring.x0, ring.x1, 37)
     assert np.allclose(np.interp(xs, ring.hub_x, ring.hub_r), default_blisk.hub.radius_at(xs), atol=1e-3)
     assert np.allclose(np.interp(xs, ring.shroud_x, ring.shroud_r), default_blisk.shroud.radius_at(xs), atol=1e-3)
+
+
+def test_thinned_poses_keep_the_ends_the_travel_and_the_volume():
+    from edm_planner.process.volume import thin_poses
+
+    # the slot of the prism test, sampled every 0.05 mm as a certificate would
+    b, c, g = 5.6, 7.6, 0.2
+    el = box_mesh((4.0, b, c))
+    poses = np.array([shifted(x, 0, 0) for x in np.linspace(-10, 50, 1201)])
+    keep = thin_poses(el.vertices, poses, 0.125)
+    assert keep[0] == 0 and keep[-1] == len(poses) - 1 and np.all(np.diff(keep) > 0)
+    assert pose_travel_of(el.vertices, poses[keep]) <= 0.125 + 0.05 + 1e-9
+    assert len(keep) <= len(poses) // 2 + 1          # 0.05 mm steps: every second pose (0.1 mm)
+    blank = block((0, -20, -20), (40, 20, 20))
+    exact = 40.0 * (b * c + 2 * g * (b + c) + math.pi * g * g)
+    full = removed_volumes(blank, [Cut("slot", el.vertices, el.faces, poses, g)], resolution=0.5)
+    thin = removed_volumes(blank, [Cut("slot", el.vertices, el.faces, poses, g)], resolution=0.5, max_travel=0.125)
+    assert thin.total == pytest.approx(full.total, rel=0.002)
+    check(thin.cuts[0], exact, 0.01)
