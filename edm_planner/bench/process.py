@@ -8,7 +8,8 @@ Two parts:
   bracket at resolutions 1, 0.5, 0.25 and 0.125 mm, with the seconds each took;
 * **blisks** -- the delivered electrode set of channel 0 of each configured blisk (designed with the machine's
   process section, or taken from the ``electrode_set`` suite's run when it ran first in the same process):
-  the channel's removed volume, its bracket and the seconds at resolutions 1, 0.5 and 0.25 mm, beside the
+  the channel's removed volume, its bracket and the seconds at resolutions 1 and 0.5 mm (and 0.25 mm on the
+  default blisk), beside the
   channel's cavity volume (quadrature of its walls, :func:`~edm_planner.process.volume.channel_cavity_volume`),
   and the process report at the default resolution (eroding time per channel and blisk, wear, electrodes).
 
@@ -26,7 +27,9 @@ from . import CONFIG
 _log = logging.getLogger(__name__)
 
 RESOLUTIONS = (1.0, 0.5, 0.25, 0.125)
-BLISK_RESOLUTIONS = (1.0, 0.5, 0.25)
+#: per blisk: the default's channel also at 0.25 mm (32 s); Rotor 37's and the mesh blisk's larger channels
+#: take 30 M voxels and many minutes there
+BLISK_RESOLUTIONS = {"default_blisk": (1.0, 0.5, 0.25), "rotor37": (1.0, 0.5), "mesh_blisk": (1.0, 0.5)}
 
 #: the sets designed by bench_electrode_set in this process (name -> ElectrodeSet), reused here
 DESIGNED = {}
@@ -140,7 +143,7 @@ def blisks(names=None, resolutions=BLISK_RESOLUTIONS):
                              np.asarray(p.plan.electrode_mesh.faces), np.asarray(p.plan.final_pose),
                              tuple(p.plan.axis_names), p.cycle) for p in chosen.pieces]
         rows = []
-        for res in resolutions:
+        for res in resolutions[name]:
             rep = plan_process(g.blisk, runs, process, resolution=res)
             rows.append({"resolution_mm": res, "estimate_mm3": round(rep.channel_removed_volume, 1),
                          "bracket_mm3": [round(rep.volume_lower, 1), round(rep.volume_upper, 1)],
