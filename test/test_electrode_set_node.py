@@ -170,6 +170,7 @@ def test_the_set_is_designed_stored_and_answered_again_from_the_store(nodes, def
     assert stored["process"]["channel"]["cavity_volume_mm3"] == pytest.approx(4503, abs=5)
     allowance = stored["roughing_allowance"]
     assert allowance["uniform"], f"the twin leaves the allowance uniform within its band: {allowance}"
+    assert allowance["twin_inset_mm"]["rough-rear"] >= 0.25 - 0.005, "the twin lies 0.25 mm inside, measured"
     assert all(v["smallest_stock_mm"] >= 0.1 - 0.03 for v in allowance["surfaces"].values()), \
         "no overcut by the roughing twin, and never less than the allowance less the band"
     assert stored["roughing_removal"]["discharge_gap_mm"] == [0.25], "the roughing proof erodes with the rough gap"

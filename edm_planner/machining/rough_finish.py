@@ -39,6 +39,7 @@ class RoughPiece:
     electrode: object
     cycle: object
     feed_clearance: np.ndarray        # (4,) certified lower bound along the feed [mm]
+    inset: float = float("nan")       # how deep the twin lies inside its finishing electrode, least [mm]
 
     @property
     def certified(self):
@@ -118,6 +119,11 @@ def rough_piece(blisk, field, piece, process, cycle_options, walls_cache=None):
         raise EdmError(ErrorCode.INTERNAL, f"no roughing electrode {piece.electrode_id!r} in its own design")
     plan = piece.plan
     electrode = in_frame_of(found[0], np.asarray(plan.final_pose, dtype=np.float64))
+    # measured, not assumed: a left/right split face is drawn in along the arc, which on a twisted channel's
+    # inclined split surface is less than the extra offset along its normal
+    from .removal import MeshDistance
+    inside = MeshDistance(np.asarray(plan.electrode_mesh.vertices), np.asarray(plan.electrode_mesh.faces))
+    inset = float(-inside(np.asarray(electrode.mesh.vertices)).max())
     names = tuple(plan.axis_names)
     feed = np.asarray(plan.samples, dtype=np.float64)
     builder = CycleBuilder(field, electrode, design, names, cycle_options)
@@ -137,7 +143,7 @@ def rough_piece(blisk, field, piece, process, cycle_options, walls_cache=None):
                          f"the path the {cert.failure_surface} clearance may fall below {safe:.3f} mm (the rough "
                          f"spark gap less the tolerance); " + cycle.message)
     return RoughPiece(f"rough-{piece.label}", piece.electrode_id, design, electrode, cycle,
-                      np.asarray(cert.lower_bound, dtype=np.float64))
+                      np.asarray(cert.lower_bound, dtype=np.float64), inset)
 
 
 def rough_sweeps(pieces):

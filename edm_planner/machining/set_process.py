@@ -66,6 +66,11 @@ def add_roughing(designer, candidate):
         if not rp.certified:
             notes.append(f"no roughing twin for {p.label}: {rp.cycle.message}")
             continue
+        extra = process.rough_electrode_gap - float(p.design.discharge_gap)
+        if rp.inset < extra - 0.01:
+            notes.append(f"the roughing twin of {p.label} lies only {rp.inset:.3f} mm inside its finishing electrode "
+                         f"somewhere (a left/right split face is drawn in along the arc, not along its normal): the "
+                         f"allowance may thin there (never below zero: its feed is certified)")
         twins.append(rp)
         twinned.append(i)
     if not twins:
@@ -78,6 +83,7 @@ def add_roughing(designer, candidate):
     ends = [x for rp in twins for x in (axial_extent(rp.design, rp.electrode_id) or ())]
     allowance = allowance_figures(report, candidate.removal, process, designer.options.tolerance, twinned, corner,
                                   ends, designer._wall_samples)
+    allowance["twin_inset_mm"] = {rp.label: round(rp.inset, 4) for rp in twins}
     candidate.rough_removal, candidate.allowance = report, allowance
     if report.overcut_max > 0:
         return [], notes + [f"the roughing proof overcuts by {report.overcut_max:.4f} mm"]
