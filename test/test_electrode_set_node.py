@@ -109,6 +109,7 @@ def test_the_set_is_designed_stored_and_answered_again_from_the_store(nodes, def
     # the corner rounding, per wall, within the 1 % allowed, the corner rounding from the walls' geometry
     store = PlanStore(str(nodes[3]))
     seq = store.get_sequence(first.set_id)
+    assert seq is not None, f"the set is kept in the plan store: {first.message[-400:]}"
     meta = seq.meta
     assert meta["meets_tolerance"] is True and meta["chosen"] == "front/rear", \
         "set.json's meets_tolerance is the acceptance (the share beyond the corner rounding), and it holds"
