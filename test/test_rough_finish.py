@@ -106,14 +106,14 @@ def test_silhouettes_and_face_wear_of_a_box():
 
     # the box fed along +x then moved along -y: each leg's wear on the face that leads it
     from edm_planner.machining.cycle import Leg, MachiningCycle, ProcessReach
-    from edm_planner.process.report import ElectrodeRun
+    from edm_planner.process.report import ProcessRun
 
     feed = Leg("feed", "feed", np.array([[-5.0, 0, 0, 0, 0], [0.0, 0, 0, 0, 0]]), regime="finish",
                removed_volume=100.0)
     side = Leg("process", "side", np.array([[0.0, 0, 0, 0, 0], [0.0, -0.2, 0, 0, 0]]), regime="finish",
                removed_volume=30.0)
     idle = Leg("return", "back", np.array([[0.0, -0.2, 0, 0, 0], [-5.0, -0.2, 0, 0, 0]]))
-    run = ElectrodeRun("main", "finish", V, F, np.eye(4), ("X", "Y", "Z", "A", "C"),
+    run = ProcessRun("main", "finish", V, F, np.eye(4), ("X", "Y", "Z", "A", "C"),
                        MachiningCycle(("X", "Y", "Z", "A", "C"), [feed, side, idle], ProcessReach(), 0.08))
     regime = DEFAULT_PROCESS.finish
     depth, areas = face_wear(run, regime)

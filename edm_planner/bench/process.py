@@ -21,6 +21,7 @@ import math
 import time
 
 import numpy as np
+import trimesh
 
 from . import CONFIG
 
@@ -36,11 +37,8 @@ DESIGNED = {}
 
 
 def _rot(axis, angle):
-    c, s = math.cos(angle), math.sin(angle)
-    m = np.eye(4)
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    m[i, i], m[i, j], m[j, i], m[j, j] = c, -s, s, c
-    return m
+    """4x4 rotation by ``angle`` about the coordinate axis ``axis`` (0, 1, 2)."""
+    return trimesh.transformations.rotation_matrix(angle, np.eye(3)[axis])
 
 
 def _box_volume_grown(a, b, c, g):
@@ -50,8 +48,6 @@ def _box_volume_grown(a, b, c, g):
 
 def closed_forms(resolutions=RESOLUTIONS):
     """The plunge and the rotation sweep, exact against estimate and bracket per resolution."""
-    import trimesh
-
     from ..process.volume import Cut, MeshBlank, removed_volumes
 
     a, b, c, g = 20.0, 6.0, 12.0, 0.25
@@ -127,7 +123,7 @@ def _design(name, path, process):
 def blisks(names=None, resolutions=BLISK_RESOLUTIONS):
     """Per configured blisk: the delivered set's removed volume against resolution, and its process report."""
     from ..machine.config import load_machine
-    from ..process.report import ElectrodeRun, plan_process
+    from ..process.report import ProcessRun, plan_process
     from ..process.volume import channel_cavity_volume
     from .machining import BLISKS
 
@@ -139,7 +135,7 @@ def blisks(names=None, resolutions=BLISK_RESOLUTIONS):
         if chosen is None:
             out[name] = {"delivered": None, "message": result.message[:300]}
             continue
-        runs = [ElectrodeRun(p.label, p.regime, np.asarray(p.plan.electrode_mesh.vertices),
+        runs = [ProcessRun(p.label, p.regime, np.asarray(p.plan.electrode_mesh.vertices),
                              np.asarray(p.plan.electrode_mesh.faces), np.asarray(p.plan.final_pose),
                              tuple(p.plan.axis_names), p.cycle) for p in chosen.pieces]
         rows = []

@@ -669,7 +669,7 @@ def time_run(legs, machine, options=TimingOptions(), cache=None):
     generator off.
     """
     cache = {} if cache is None else cache
-    process = getattr(machine, "process", None)
+    process = machine.process
     parts, marks = [], []
     for leg in legs:
         names = tuple(leg.plan.axis_names)
@@ -689,9 +689,8 @@ def time_run(legs, machine, options=TimingOptions(), cache=None):
             part = shift_joint(hit[0], "A", a0 - hit[1], machine)
         mark = {"phase": leg.phase, "label": leg.label, "channel": leg.channel, "plan_id": leg.plan.plan_id,
                 "electrode_id": leg.plan.electrode_id}
-        regime_name = getattr(leg, "regime", "")
-        volume = float(getattr(leg, "removed_volume", float("nan")))
-        if regime_name and process is not None:
+        regime_name, volume = leg.regime, float(leg.removed_volume)
+        if regime_name:
             regime = process.regimes.get(regime_name)
             if regime is None:
                 raise EdmError(ErrorCode.INVALID_REQUEST,

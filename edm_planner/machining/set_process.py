@@ -23,7 +23,7 @@ import numpy as np
 
 from ..errors import EdmError
 from ..planning.planner import plan_id_for
-from ..process.report import ElectrodeRun, plan_process
+from ..process.report import ProcessRun, plan_process
 from .rough_finish import allowance_figures, axial_extent, rough_piece, rough_sweeps
 
 _log = logging.getLogger(__name__)
@@ -116,7 +116,7 @@ def add_process(designer, candidate, resolution=0.5):
             candidate.pieces = twins + candidate.pieces
         else:
             candidate.single_regime_reason = "; ".join(notes) or "no roughing twin"
-    runs = [ElectrodeRun(p.label, p.regime, np.asarray(p.plan.electrode_mesh.vertices),
+    runs = [ProcessRun(p.label, p.regime, np.asarray(p.plan.electrode_mesh.vertices),
                          np.asarray(p.plan.electrode_mesh.faces), np.asarray(p.plan.final_pose),
                          tuple(p.plan.axis_names), p.cycle) for p in candidate.pieces]
     candidate.process = plan_process(designer.blisk, runs, process, resolution=resolution,

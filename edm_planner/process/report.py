@@ -43,7 +43,7 @@ CUTTING_PHASES = ("approach", "feed", "process", "retract")
 
 
 @dataclass
-class ElectrodeRun:
+class ProcessRun:
     """One electrode of the set, as the process plan needs it.
 
     Attributes
@@ -151,10 +151,6 @@ class ProcessReport:
                     if self.process.wear_compensation else None),
                 "process": self.process.to_dict(), "seconds": round(self.seconds, 2)}
 
-    @property
-    def channel_bracket(self):
-        return self.volume_lower, self.volume_upper
-
     def summary(self):
         """A few lines for logs and the CLI."""
         lines = [f"process (model estimates): channel {self.channel_removed_volume:.0f} mm^3 removed "
@@ -258,21 +254,20 @@ def face_wear(run, regime):
 
 
 def _cuts(runs, process):
-    """One Cut per leg that may erode, and where each cut's result goes (run index, leg index)."""
-    from ..machining.electrode_set import retraces
+    """One Cut per leg that may erode, and where each cut's result goes (run index, leg index); a leg that
+    retraces earlier ones (:func:`~edm_planner.machining.electrode_set.proof_legs`) erodes nothing."""
+    from ..machining.electrode_set import proof_legs
 
     cuts, where = [], []
     for i, run in enumerate(runs):
         gap = process.regimes[run.regime].spark_gap
-        earlier = []
+        kept = {id(leg) for leg in proof_legs(run.cycle)}
         for j, leg in enumerate(run.cycle.legs):
-            samples = np.asarray(leg.samples, dtype=np.float64)
-            if leg.phase in CUTTING_PHASES and not retraces(samples, earlier):
-                poses = axis_poses(run.final_pose, run.axis_names, samples)
+            if leg.phase in CUTTING_PHASES and id(leg) in kept:
+                poses = axis_poses(run.final_pose, run.axis_names, np.asarray(leg.samples, dtype=np.float64))
                 cuts.append(Cut(f"{run.label}/{j}", np.asarray(run.vertices, float), np.asarray(run.faces),
                                 poses, gap))
                 where.append((i, j))
-            earlier.append(samples)
     return cuts, where
 
 
@@ -294,7 +289,7 @@ def plan_process(blisk, runs, process, resolution=0.5, stock_mesh=None, progress
     Parameters
     ----------
     blisk : Blisk
-    runs : list of ElectrodeRun
+    runs : list of ProcessRun
         Machining order.
     process : ProcessModel
     resolution : float
