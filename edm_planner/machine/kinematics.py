@@ -209,3 +209,20 @@ def axis_poses(final_pose, axis_names, q):
     xyz = np.stack([col["X"], col["Y"], col["Z"]], axis=1) + final_pose[:3, 3]
     position = np.einsum("nij,nj->ni", _rot_x(a)[:, :3, :3], xyz)
     return state_poses(final_pose, position, a, col["C"], col.get("B"))
+
+
+def offset_axes(final_pose, axis_names, q, offset):
+    """Axis values that move the electrode by ``offset`` [mm] in its own frame: axis_poses(result) equals
+    axis_poses(q) @ T(offset) (a tool offset, e.g. the wear compensation along the front).
+
+    The electrode origin is R_x(A) (X, Y, Z + t_final), so X, Y, Z change by R_x(A)^T R offset, with R the
+    pose's rotation: only C (and B) turn it, A cancels. The other axes keep their values.
+    """
+    q = np.array(np.atleast_2d(q), dtype=np.float64, copy=True)
+    names = list(axis_names)
+    rot = axis_poses(final_pose, names, q)[:, :3, :3]
+    a = q[:, names.index("A")] if "A" in names else np.zeros(len(q))
+    move = np.einsum("nji,njk,k->ni", _rot_x(a)[:, :3, :3], rot, np.asarray(offset, dtype=np.float64))
+    for i, name in enumerate(("X", "Y", "Z")):
+        q[:, names.index(name)] += move[:, i]
+    return q

@@ -29,13 +29,13 @@ axis bridge times each leg on its own and sends the whole cycle in order.
 """
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.interpolate import CubicSpline
 
 from ..interference import SURFACES
-from ..machine.kinematics import axis_poses
+from ..machine.kinematics import axis_poses, offset_axes
 from ..planning.certify import PathCertifier
 
 _log = logging.getLogger(__name__)
@@ -119,6 +119,12 @@ class ProcessReach:
     not this electrode's), ``radial_reach`` the radial move achieved against
     the ``radial_reduction`` asked for at each rotation (A = 0 first), and
     ``radial_stock`` what is left on the shroud for another electrode to take.
+
+    Wear compensation by feed depth (the machine YAML's ``process.wear_compensation``;
+    :func:`edm_planner.machining.set_process.add_wear_compensation`): in the j-th channel of one
+    electrode's life the whole cycle runs with the electrode moved ``compensation_depths[j]`` mm along
+    ``compensation_front`` (a unit vector, electrode frame), a tool offset (:meth:`MachiningCycle.with_compensation_depth`);
+    after ``len(compensation_depths)`` channels a fresh electrode takes over. Empty: no compensation.
     """
 
     rotation_suction: float = 0.0
@@ -127,11 +133,24 @@ class ProcessReach:
     radial_reach: tuple = ()
     radial_stock: float = 0.0
     axes_without_a: bool = False
+    compensation_front: tuple = ()
+    compensation_depths: tuple = ()
 
     def to_dict(self):
         return {"rotation_suction_rad": self.rotation_suction, "rotation_pressure_rad": self.rotation_pressure,
                 "radial_reduction_mm": self.radial_reduction, "radial_reach_mm": list(self.radial_reach),
-                "radial_stock_mm": self.radial_stock, "axes_without_a": self.axes_without_a}
+                "radial_stock_mm": self.radial_stock, "axes_without_a": self.axes_without_a,
+                "compensation_front": list(self.compensation_front),
+                "compensation_depths_mm": list(self.compensation_depths)}
+
+    @classmethod
+    def from_dict(cls, r):
+        """From :meth:`to_dict` (records and exports written before wear compensation have none)."""
+        return cls(rotation_suction=r.get("rotation_suction_rad", 0.0), rotation_pressure=r.get("rotation_pressure_rad", 0.0),
+                   radial_reduction=r.get("radial_reduction_mm", 0.0), radial_reach=tuple(r.get("radial_reach_mm", ())),
+                   radial_stock=r.get("radial_stock_mm", 0.0), axes_without_a=bool(r.get("axes_without_a", False)),
+                   compensation_front=tuple(float(v) for v in r.get("compensation_front", ())),
+                   compensation_depths=tuple(float(v) for v in r.get("compensation_depths_mm", ())))
 
 
 @dataclass
@@ -183,6 +202,25 @@ class MachiningCycle:
             else:
                 out.append((phase, a, b))
         return out
+
+    def with_compensation_depth(self, depth, final_pose):
+        """The legs run with the wear compensation ``depth`` [mm]: every pose moved that far along the
+        front in the electrode frame (:func:`~edm_planner.machine.kinematics.offset_axes`); the legs as they
+        are without compensation or at depth 0.
+
+        Certified by inclusion, with no new certificate: the wear model recedes the front uniformly along
+        it (:mod:`edm_planner.process.report`), so an electrode worn at least ``depth`` deep is inside
+        E n (E - depth front), and moved ``depth`` along the front inside E n (E + depth front), a part of
+        the unworn electrode E at the very same pose. Every clearance the cycle certifies holds for it, and
+        its front reaches where the unworn front did. The schedule only ever offsets wear already done.
+        """
+        front = self.reach.compensation_front
+        if not front or depth == 0.0:
+            return list(self.legs)
+        if not (np.isfinite(depth) and depth > 0.0):
+            raise ValueError(f"a wear compensation depth must be finite and >= 0 mm, got {depth!r}")
+        offset = depth * np.asarray(front, dtype=np.float64)
+        return [replace(leg, samples=offset_axes(final_pose, self.axis_names, leg.samples, offset)) for leg in self.legs]
 
     def clearance_lower_bound(self, phase=None):
         """(4,) certified lower bound per surface over the legs (of one phase) [mm]."""

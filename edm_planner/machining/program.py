@@ -11,8 +11,13 @@ store, :meth:`~edm_planner.planning.store.PlanStore.put_sequence`):
 
 Each step runs the plan's whole machining cycle (approach, feed, process,
 return, retract; :mod:`.cycle`) moved from the plan's channel to the step's
-(A += (k - plan channel) * pitch; the blisk is periodic). Between two steps of
-the same electrode an **index** leg turns A by the channel difference at the
+(A += (k - plan channel) * pitch; the blisk is periodic). With wear compensation
+(the plan's ``reach.compensation_depths``) the j-th channel of an electrode's life
+runs the cycle moved ``compensation_depths[j]`` along the electrode's front (the
+wear it has taken by then), and after the last one a new electrode of the same
+plan takes over (a tool change). Between two steps of
+the same electrode an **index** leg turns A by the channel difference (and
+moves X, Y, Z by the change of the wear compensation, :func:`index_leg`) at the
 cycle's home point (the approach start, outside the blades' axial range by the
 exit distance plus the approach distance). There the electrode lies wholly
 beyond the blades' axial range and hub and shroud are surfaces of revolution,
@@ -36,6 +41,8 @@ from ..errors import EdmError, ErrorCode
 
 #: largest A step between samples of an index leg [rad] (0.05 mm at 100 mm from the axis)
 INDEX_STEP = 0.0005
+#: largest X, Y, Z step between samples of an index leg that changes the wear compensation [mm]
+COMPENSATION_STEP = 0.05
 #: phase names of the program besides the cycle's (edm_planner.machining.cycle.PHASES)
 INDEX, TOOL_CHANGE = "index", "tool_change"
 
@@ -191,29 +198,48 @@ class ElectrodeRun:
     plan: PlanCycle
     channels: list
     legs: list = field(default_factory=list)
+    replacement: int = 0           # the n-th fresh electrode of the same plan (wear compensation's life)
 
     @property
     def label(self):
-        return self.plan.electrode_id or f"electrode {self.order + 1}"
+        name = self.plan.electrode_id or f"electrode {self.order + 1}"
+        return f"{name} (replacement {self.replacement})" if self.replacement else name
 
 
-def index_leg(q_from, q_to, axis_names, plan, channel, step=INDEX_STEP):
-    """The A turn at the home point from one channel's to another's (a straight leg in A only)."""
+def index_leg(q_from, q_to, axis_names, plan, channel, step=INDEX_STEP, compensation=0.0):
+    """The A turn at the home point from one channel's to another's (a straight leg in A only).
+
+    With wear compensation X, Y, Z also move, by the change of the compensation (``compensation`` [mm],
+    the depth added along the front): the offset is the same in X, Y, Z at any A
+    (:func:`~edm_planner.machine.kinematics.offset_axes`), so every sample is the home point turned by
+    some A and moved by a depth between the two, which the worn electrode has taken: it lies inside the
+    unworn electrode at the turned home point, which no final surface comes near.
+    """
     q_from, q_to = np.asarray(q_from, dtype=np.float64), np.asarray(q_to, dtype=np.float64)
     diff = np.flatnonzero(q_from != q_to)
-    ia = list(axis_names).index("A")
-    if len(diff) and set(diff) != {ia}:
-        raise EdmError(ErrorCode.INTERNAL, f"an index move may turn A only, it would move axes "
-                                           f"{[axis_names[i] for i in diff]}")
-    n = max(2, int(np.ceil(abs(q_to[ia] - q_from[ia]) / step)) + 1)
+    names = list(axis_names)
+    ia = names.index("A")
+    xyz = [names.index(n) for n in "XYZ"]
+    allowed = {ia} | (set(xyz) if compensation else set())
+    if len(diff) and not set(diff) <= allowed:
+        raise EdmError(ErrorCode.INTERNAL, f"an index move may turn A only (and move X, Y, Z by a change of the "
+                                           f"wear compensation), it would move axes {[axis_names[i] for i in diff]}")
+    n = max(2, int(np.ceil(abs(q_to[ia] - q_from[ia]) / step)) + 1,
+            int(np.ceil(np.linalg.norm(q_to[xyz] - q_from[xyz]) / COMPENSATION_STEP)) + 1)
     samples = np.repeat(q_from[None], n, axis=0)
     samples[:, ia] = np.linspace(q_from[ia], q_to[ia], n)
+    if compensation:
+        samples[:, xyz] = np.linspace(q_from[xyz], q_to[xyz], n)
     samples[-1] = q_to
-    return ProgramLeg(INDEX, f"index A {q_to[ia] - q_from[ia]:+.5f} rad to channel {channel}", samples, channel, plan)
+    label = f"index A {q_to[ia] - q_from[ia]:+.5f} rad to channel {channel}"
+    if compensation:
+        label += f", wear compensation {compensation:+.4f} mm"
+    return ProgramLeg(INDEX, label, samples, channel, plan)
 
 
-def cycle_legs(plan, channel, pitch):
-    """The legs of a plan's cycle in channel ``channel``.
+def cycle_legs(plan, channel, pitch, use=0):
+    """The legs of a plan's cycle in channel ``channel``, the ``use``-th channel of its electrode's life
+    (with wear compensation, the cycle moved ``reach.compensation_depths[use]`` along the front).
 
     INVALID_REQUEST when the plan has no cycle, INFEASIBLE when its cycle is not certified (a leg that may
     come closer to a final surface than the machining margin would overcut it).
@@ -227,10 +253,12 @@ def cycle_legs(plan, channel, pitch):
         raise EdmError(ErrorCode.INFEASIBLE,
                        f"the machining cycle of plan {plan.plan_id} (electrode {plan.electrode_id or '-'}) is not "
                        f"certified: {plan.cycle.message or 'no reason recorded'}; it is not sent nor written")
+    depths = plan.cycle.reach.compensation_depths
+    legs = plan.cycle.with_compensation_depth(depths[use], plan.final_pose) if depths else plan.cycle.legs
     return [ProgramLeg(leg.phase, leg.label,
                        shift_to_channel(leg.samples, plan.axis_names, plan.channel, channel, pitch), int(channel), plan,
                        leg.regime, leg.removed_volume)
-            for leg in plan.cycle.legs]
+            for leg in legs]
 
 
 def program_runs(steps, plans, pitch=None):
@@ -246,7 +274,8 @@ def program_runs(steps, plans, pitch=None):
     Returns
     -------
     list of ElectrodeRun
-        One per run of consecutive steps with the same plan; a tool change lies between two runs.
+        One per run of consecutive steps with the same plan (and, with wear compensation, the same
+        electrode's life); a tool change lies between two runs.
 
     Raises
     ------
@@ -257,6 +286,7 @@ def program_runs(steps, plans, pitch=None):
     """
     runs = []
     names = None
+    uses = {}                      # plan id -> channels its electrode machined so far
     for plan_id, channel in steps:
         plan = plans.get(plan_id)
         if plan is None:
@@ -269,14 +299,19 @@ def program_runs(steps, plans, pitch=None):
         if int(channel) != plan.channel and pitch is None:
             raise EdmError(ErrorCode.INVALID_REQUEST, f"plan {plan_id} is for channel {plan.channel}, its step for "
                                                       f"channel {channel}: the blade count (pitch) is needed")
-        legs = cycle_legs(plan, channel, pitch)
-        if runs and runs[-1].plan.plan_id == plan_id:
+        depths = plan.cycle.reach.compensation_depths if plan.cycle is not None else ()
+        life = len(depths)
+        use = uses.get(plan_id, 0)
+        uses[plan_id] = use + 1
+        legs = cycle_legs(plan, channel, pitch, use % life if life else 0)
+        if runs and runs[-1].plan.plan_id == plan_id and not (life and use % life == 0):
             run = runs[-1]
             home_from, home_to = run.legs[-1].samples[-1], legs[0].samples[0]
+            change = depths[use % life] - depths[use % life - 1] if life else 0.0
             if not np.array_equal(home_from, home_to):
-                run.legs.append(index_leg(home_from, home_to, names, plan, int(channel)))
+                run.legs.append(index_leg(home_from, home_to, names, plan, int(channel), compensation=change))
         else:
-            run = ElectrodeRun(len(runs), plan, [])
+            run = ElectrodeRun(len(runs), plan, [], replacement=use // life if life else 0)
             runs.append(run)
         run.channels.append(int(channel))
         run.legs.extend(legs)
@@ -338,11 +373,6 @@ def read_exported_cycle(export_dir, doc):
                         np.nan if volume is None else float(volume)))
     if not legs or int(section["legs"][-1]["last"]) != len(body) - 1:
         raise EdmError(ErrorCode.FILE_ERROR, f"{path}: {len(body)} rows, plan.json's legs end elsewhere")
-    r = section.get("reach") or {}
-    reach = ProcessReach(rotation_suction=r.get("rotation_suction_rad", 0.0),
-                         rotation_pressure=r.get("rotation_pressure_rad", 0.0),
-                         radial_reduction=r.get("radial_reduction_mm", 0.0),
-                         radial_reach=tuple(r.get("radial_reach_mm", ())), radial_stock=r.get("radial_stock_mm", 0.0),
-                         axes_without_a=r.get("axes_without_a", False))
+    reach = ProcessReach.from_dict(section.get("reach") or {})
     return MachiningCycle(names, legs, reach, float(section.get("margin_mm", np.nan)),
                           bool(section.get("certified", False)), section.get("message", ""))

@@ -6,7 +6,8 @@ Runs once on the delivered candidate, after its finishing proof (:meth:`.electro
    certified cycle, and the roughing proof (the removal simulation with the rough spark gap) with the
    allowance it leaves; the twins become pieces of the set, machined first (``rough-<label>``);
 2. the removed volume of every leg of every electrode in machining order, written onto the legs with
-   their regime (so the bridge erosion-times them), and the process report (:mod:`edm_planner.process.report`).
+   their regime (so the bridge erosion-times them), and the process report (:mod:`edm_planner.process.report`);
+3. with ``wear_compensation``: every electrode's compensation by feed depth (:func:`add_wear_compensation`).
 
 A piece whose twin cannot be made (its finishing electrode is thinner somewhere than twice the twin's extra
 offset) or certified gets none and erodes its region alone at the finish regime; with no twin at all, or a
@@ -23,7 +24,7 @@ import numpy as np
 
 from ..errors import EdmError
 from ..planning.planner import plan_id_for
-from ..process.report import ProcessRun, plan_process
+from ..process.report import ProcessRun, compensation_schedule, leg_direction, plan_process
 from .rough_finish import allowance_figures, axial_extent, rough_piece, rough_sweeps
 
 _log = logging.getLogger(__name__)
@@ -121,4 +122,30 @@ def add_process(designer, candidate, resolution=0.5):
                          tuple(p.plan.axis_names), p.cycle) for p in candidate.pieces]
     candidate.process = plan_process(designer.blisk, runs, process, resolution=resolution,
                                      stock_mesh=getattr(designer, "stock_mesh", None))
+    if process.wear_compensation:
+        add_wear_compensation(designer, candidate, runs)
     return candidate.process
+
+
+def add_wear_compensation(designer, candidate, runs):
+    """Wear compensation by feed depth on every electrode of the candidate's process report.
+
+    Per electrode: the front is the feed's last direction (electrode frame), the schedule follows from the
+    wear per face (:func:`~edm_planner.process.report.compensation_schedule`), and the cycle's
+    ``reach.compensation_front`` / ``compensation_depths`` let the program run the j-th channel of an
+    electrode's life moved that deep along the front (:meth:`~.cycle.MachiningCycle.with_compensation_depth`:
+    certified by inclusion in the unworn electrode, no new certificate). The stored cycle is the first
+    channel's, a fresh electrode's, at depth 0.
+    """
+    process = designer.process
+    for p, run, e in zip(candidate.pieces, runs, candidate.process.electrodes):
+        feed = next(leg for leg in p.cycle.legs if leg.phase == "feed")
+        front = leg_direction(run, feed)
+        depths = compensation_schedule(e, process.max_compensated_wear, designer.blisk.blade_count,
+                                       front is not None and feed.removed_volume > 0)
+        if not depths:
+            _log.warning("%s: no wear compensation: %s", p.label, e.compensation["note"])
+            continue
+        e.compensation["front_direction"] = [round(float(v), 6) for v in front]
+        p.cycle.reach.compensation_front = tuple(float(v) for v in front)
+        p.cycle.reach.compensation_depths = tuple(float(d) for d in depths)

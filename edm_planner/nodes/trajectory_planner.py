@@ -153,6 +153,7 @@ def fill_process(response, meta):
         return
     for e in proc["electrodes"]:
         low, high = e["removed_volume_bracket_mm3"]
+        comp = e.get("wear_compensation") or {}
         response.process.append(ElectrodeProcess(
             label=e["label"], regime=e["regime"], condition_code=e["condition_code"],
             removed_volume=float(e["removed_volume_mm3"]), removed_volume_lower=float(low),
@@ -160,7 +161,10 @@ def fill_process(response, meta):
             wear_volume=float(e["wear_volume_mm3"]), frontal_area=float(e["frontal_area_mm2"]),
             frontal_wear=float(e["frontal_wear_per_channel_mm"]),
             worst_face_wear=float(e["worst_face_wear_per_channel_mm"]), wear_limit=float(e["wear_limit_mm"]),
-            electrodes_per_channel=int(e["electrodes_per_channel"]), electrodes_per_blisk=int(e["electrodes_per_blisk"])))
+            electrodes_per_channel=int(e["electrodes_per_channel"]), electrodes_per_blisk=int(e["electrodes_per_blisk"]),
+            compensation_direction=[float(v) for v in comp.get("front_direction", [])],
+            compensation_depths=[float(d) for d in comp.get("depths_mm", [])],
+            compensation_note=str(comp.get("note", ""))))
     response.channel_removed_volume = float(proc["channel"]["removed_volume_mm3"])
     response.channel_eroding_time = 3600.0 * float(proc["channel"]["eroding_time_h"])
     response.blisk_eroding_time = 3600.0 * float(proc["blisk"]["eroding_time_h"])

@@ -624,11 +624,8 @@ def cycle_from_record(meta, arrays):
     legs = [Leg(phase, label, samples[a:b].copy(), arrays["cycle_min_clearance"][i].copy(), regimes[i],
                 float("nan") if volumes[i] is None else float(volumes[i]))
             for i, (phase, label, a, b) in enumerate(zip(c["phases"], c["labels"], bounds[:-1], bounds[1:]))]
-    r = c["reach"]
-    reach = ProcessReach(rotation_suction=r["rotation_suction_rad"], rotation_pressure=r["rotation_pressure_rad"],
-                         radial_reduction=r["radial_reduction_mm"], radial_reach=tuple(r["radial_reach_mm"]),
-                         radial_stock=r["radial_stock_mm"], axes_without_a=r["axes_without_a"])
-    return MachiningCycle(tuple(c["axis_names"]), legs, reach, c["margin"], c["certified"], c["message"])
+    return MachiningCycle(tuple(c["axis_names"]), legs, ProcessReach.from_dict(c["reach"]), c["margin"],
+                          c["certified"], c["message"])
 
 
 def stored_to_plan(stored, where="the plan store"):

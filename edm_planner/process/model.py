@@ -108,14 +108,13 @@ class ProcessModel:
         return self.rough.spark_gap + self.finish_allowance
 
     def wear_limit(self, regime="finish"):
-        """The face wear one electrode may take before it is replaced or redressed [mm].
+        """The face wear one electrode may take before it is replaced or redressed [mm], uncompensated.
 
-        With wear compensation (the control feeds deeper by the estimated wear): ``max_compensated_wear``.
-        Without: a finishing electrode's wear shows in the part, so ``wear_tolerance``; a roughing
-        electrode's only adds to the allowance it leaves, so ``allowance_band``.
+        A finishing electrode's wear shows in the part, so ``wear_tolerance``; a roughing electrode's only
+        adds to the allowance it leaves, so ``allowance_band``. With wear compensation the front may wear
+        further, as far as the compensation's certified reach (at most ``max_compensated_wear``;
+        :func:`~.report.compensation_schedule`); the other faces keep this limit.
         """
-        if self.wear_compensation:
-            return self.max_compensated_wear
         return self.allowance_band if regime == "rough" else self.wear_tolerance
 
     def to_dict(self):

@@ -16,10 +16,12 @@ for the whole blisk:
   model estimate: real wear concentrates on edges and corners, which this even spread does not show;
 * electrodes needed: an electrode may take the process model's wear limit on its worst face
   (:meth:`~.model.ProcessModel.wear_limit`: the tolerance for a finishing electrode, the allowance band
-  for a roughing one, ``max_compensated_wear_mm`` where the control compensates the wear by feed depth),
-  so a channel needs ceil(worst face wear / limit) of each (at least one) and the whole blisk, where one
-  electrode goes through every channel in turn, ceil(N x worst face wear / limit). With compensation the
-  report gives the depth the control adds per channel (the front's wear, channel after channel).
+  for a roughing one), so a channel needs ceil(worst face wear / limit) of each (at least one) and the
+  whole blisk, where one electrode goes through every channel in turn, ceil(N x worst face wear / limit);
+* wear compensation by feed depth (``wear_compensation``; :func:`compensation_schedule`): channel after
+  channel the cycle runs with the electrode moved along its front by the wear the front has taken, so the
+  front may wear up to ``max_compensated_wear_mm`` while the other faces keep their limit: an electrode
+  lasts as many channels as both allow, and the blisk needs ceil(N / that).
 
 Units: mm, mm^3, s (h in the text). No rclpy.
 """
@@ -89,6 +91,7 @@ class ElectrodeProcess:
     electrodes_per_channel: int
     electrodes_per_blisk: int
     legs: list = field(default_factory=list)     # [(phase, label, volume mm^3, eroding time s)]
+    compensation: dict = None        # wear compensation by feed depth (compensation_schedule), None: none
 
     @property
     def worst_face_wear(self):
@@ -108,7 +111,8 @@ class ElectrodeProcess:
                 "electrodes_per_channel": self.electrodes_per_channel,
                 "electrodes_per_blisk": self.electrodes_per_blisk,
                 "legs": [{"phase": p, "label": lab, "removed_volume_mm3": round(v, 3), "eroding_time_s": round(t, 1)}
-                         for p, lab, v, t in self.legs]}
+                         for p, lab, v, t in self.legs],
+                "wear_compensation": self.compensation}
 
 
 @dataclass
@@ -146,9 +150,6 @@ class ProcessReport:
                 "reference": "Liu et al. 2024: 4.07 to 4.25 h per channel, 249.3 h for a 60-channel shrouded "
                              "blisk (another blisk and machine: set beside, not compared)",
                 "volume_resolution_mm": self.resolution, "volume_accuracy": self.accuracy, "blank": self.blank,
-                "wear_compensation": (
-                    {e.label: {"depth_added_per_channel_mm": round(e.frontal_wear, 4)} for e in self.electrodes}
-                    if self.process.wear_compensation else None),
                 "process": self.process.to_dict(), "seconds": round(self.seconds, 2)}
 
     def summary(self):
@@ -163,6 +164,12 @@ class ProcessReport:
                          f"{e.eroding_time / 3600:6.2f} h  wear {e.wear_volume:6.1f} mm^3, front "
                          f"{e.frontal_wear:.3f} mm, worst face {e.worst_face_wear:.3f} mm per channel (limit "
                          f"{e.wear_limit:g} mm): {e.electrodes_per_channel}/channel, {e.electrodes_per_blisk}/blisk")
+            c = e.compensation
+            if c and c["depths_mm"]:
+                lines.append(f"  {'':14s} wear compensation: the cycle moved 0 .. {c['depths_mm'][-1]:.4f} mm along "
+                             f"the front over {c['channels_per_electrode']} channel(s), then a fresh electrode")
+            elif c:
+                lines.append(f"  {'':14s} no wear compensation: {c['note']}")
         return "\n".join(lines)
 
 
@@ -251,6 +258,45 @@ def face_wear(run, regime):
         areas[face] = cache[key]
     names = {f: ("front" if f == front else f"face {f}") for f in depth}
     return {names[f]: v for f, v in depth.items()}, {names[f]: a for f, a in areas.items()}
+
+
+def compensation_schedule(e, max_compensated_wear, blade_count, has_front=True):
+    """Wear compensation by feed depth for one electrode: its schedule, and its counts updated.
+
+    The control runs the j-th channel of an electrode's life with the electrode moved along its front by
+    the wear the front has taken before that channel, ``j x frontal_wear`` (never more than the wear
+    already done: :meth:`~edm_planner.machining.cycle.MachiningCycle.with_compensation_depth`). Within a
+    channel the wear still grows by one channel's, so every face must keep within its limit over one
+    channel (``e.electrodes_per_channel == 1``); across channels the front may wear up to
+    ``max_compensated_wear`` and every other face up to ``e.wear_limit``. The electrode lasts L channels,
+    the fewest any face allows, and the blisk needs ceil(N / L).
+
+    Sets ``e.compensation`` ({depths_mm, channels_per_electrode, note}) and, where compensation applies,
+    ``e.electrodes_per_blisk``; returns the depths (empty: no compensation, and why in the note).
+    """
+    front = e.face_wear.get("front", 0.0)
+    sides = max((v for k, v in e.face_wear.items() if k != "front"), default=0.0)
+    depths, life = [], 0
+    if not has_front or front <= 0:
+        note = "the feed removes nothing: no front wear to compensate"
+    elif e.electrodes_per_channel > 1:
+        note = (f"a face wears {e.worst_face_wear:.4f} mm in one channel, more than its {e.wear_limit:g} mm limit: "
+                f"the electrode is redressed within the channel, compensation between channels does not help")
+    else:
+        life_front = math.floor(max_compensated_wear / front + 1e-9)
+        life_sides = math.floor(e.wear_limit / sides + 1e-9) if sides > 0 else blade_count
+        life = max(0, min(life_front, life_sides, blade_count))
+        if life == 0:
+            note = f"the front wears {front:.4f} mm per channel, more than max_compensated_wear {max_compensated_wear:g} mm"
+        else:
+            depths = [j * front for j in range(life)]
+            e.electrodes_per_blisk = math.ceil(blade_count / life)
+            why = ("every channel done" if life == blade_count else
+                   "its front reaches max_compensated_wear" if life == life_front else "a side face reaches its limit")
+            note = f"the cycle moved along the front by its wear, channel after channel; replaced after {life} channel(s): {why}"
+    e.compensation = {"depths_mm": [round(float(d), 5) for d in depths], "channels_per_electrode": life,
+                      "max_compensated_wear_mm": max_compensated_wear, "note": note}
+    return depths
 
 
 def _cuts(runs, process):
