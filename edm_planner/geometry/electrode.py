@@ -52,6 +52,10 @@ class ElectrodeDesign:
         Where the split falls, 0..1 of the angle (left/right) or of the axial range (front/rear).
     split_overlap : float
         Overlap of the two sub-electrodes [mm].
+    split_inset : float
+        A roughing twin's left/right split: each split face lies this far [mm] inside, along its
+        normal, the split face of the same design with the discharge gap less this (its finishing
+        electrode's); 0: the split faces follow this design's own walls.
     resolution : float
         Largest edge length of the electrode lattice [mm].
     chord_tolerance : float
@@ -69,11 +73,12 @@ class ElectrodeDesign:
     split_overlap: float = 0.5
     resolution: float = 0.5
     chord_tolerance: float = 0.005
+    split_inset: float = 0.0
 
     def __post_init__(self):
         w = "electrode"
         for name in ("discharge_gap", "circumferential_reduction", "radial_reduction",
-                     "split_fraction", "split_overlap", "resolution", "chord_tolerance"):
+                     "split_fraction", "split_overlap", "resolution", "chord_tolerance", "split_inset"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
                 raise GeometryError(f"{w}.{name}: must be a number, got {value!r}")
@@ -95,6 +100,9 @@ class ElectrodeDesign:
             raise GeometryError(f"{w}.split_fraction: must lie in 0.05 .. 0.95, got {self.split_fraction:g}")
         if self.split_overlap < 0:
             raise GeometryError(f"{w}.split_overlap: must be >= 0 mm, got {self.split_overlap:g}")
+        if not 0.0 <= self.split_inset <= self.discharge_gap - 0.01:
+            raise GeometryError(f"{w}.split_inset: must lie in 0 .. discharge_gap - 0.01 = "
+                                f"{self.discharge_gap - 0.01:g} mm, got {self.split_inset:g}")
         if not 1e-4 <= self.chord_tolerance <= 0.1:
             raise GeometryError(f"{w}.chord_tolerance: must lie in 0.0001 .. 0.1 mm, got {self.chord_tolerance:g}")
         if not 0.05 <= self.resolution <= 5:
@@ -122,6 +130,8 @@ class ElectrodeDesign:
     def to_dict(self):
         d = {f.name: getattr(self, f.name) for f in fields(self)}
         d["axial_range"] = list(self.axial_range) if self.axial_range else None
+        if not self.split_inset:                       # a finishing design's record (and id) as before
+            del d["split_inset"]
         return d
 
 
@@ -251,7 +261,7 @@ def design_electrodes(blisk, design=None, only=None, walls_cache=None):
         ranges = {"front": (x0, hi), "rear": (lo, x1)}
         parts = {k: _walls(blisk, design, *r, cache=walls_cache) for k, r in ranges.items() if only in (None, k)}
     else:
-        parts = _split_sides(design, *_walls(blisk, design, x0, x1, cache=walls_cache))
+        parts = _split_sides(design, *_walls(blisk, design, x0, x1, cache=walls_cache), blisk=blisk)
     electrodes = []
     for name, (X, R, tl, tr) in parts.items():
         if only is not None and name != only:
@@ -290,12 +300,7 @@ def _walls(blisk, design, x0, x1, cache=None):
             cache[key] = walls
     x, R, th_l, th_r = walls
     h = design.circumferential_reduction
-    if design.reduction_side == "left":
-        th_l = th_l + h
-    elif design.reduction_side == "right":
-        th_r = th_r - h
-    else:
-        th_l, th_r = th_l + h / 2, th_r - h / 2
+    th_l, th_r = _reduced(design, th_l, th_r)
     width = (th_r - th_l) * R
     if width.min() < TOL.min_feature:
         raise GeometryError(
@@ -303,6 +308,25 @@ def _walls(blisk, design, x0, x1, cache=None):
             f"(narrowest channel after the gap: {np.min(width + h * R):.3f} mm)")
     X = np.repeat(x[:, None], R.shape[1], axis=1)
     return X, R, th_l, th_r
+
+
+def _reduced(design, th_l, th_r):
+    """Side angles with the circumferential reduction h applied (rotated towards the channel middle)."""
+    h = design.circumferential_reduction
+    if design.reduction_side == "left":
+        return th_l + h, th_r
+    if design.reduction_side == "right":
+        return th_l, th_r - h
+    return th_l + h / 2, th_r - h / 2
+
+
+def _side_angles(blisk, x, r, gap):
+    """Suction and pressure wall angles offset by ``gap`` at the points (x, r) [mm]: (theta_l, theta_r)."""
+    th_s, th_p, inside, (g_s, g_p) = blisk.wall_angles(x, r, with_gradient=True)
+    if not inside.all():
+        raise GeometryError("electrode: the channel walls do not cover the electrode's axial range")
+    # discharge-gap offset on the exact distance to the reconstructed faces
+    return _offset_wall(blisk.suction_face, x, r, th_s, g_s, gap, +1.0), _offset_pressure(blisk, x, r, th_p, g_p, gap)
 
 
 def _offset_walls(blisk, design, x0, x1):
@@ -330,13 +354,7 @@ def _offset_walls(blisk, design, x0, x1):
         r_lo = hub.radius_at(x)
         r_hi = shroud.radius_at(x) - design.radial_reduction
         R = r_lo[:, None] + rho[None, :] * (r_hi - r_lo)[:, None]
-        xf, rf = np.repeat(x, nr), R.ravel()
-        th_s, th_p, inside, (g_s, g_p) = blisk.wall_angles(xf, rf, with_gradient=True)
-        if not inside.all():
-            raise GeometryError("electrode: the channel walls do not cover the electrode's axial range")
-        # discharge-gap offset on the exact distance to the reconstructed faces
-        th_l = _offset_wall(blisk.suction_face, xf, rf, th_s, g_s, gap, +1.0)
-        th_r = _offset_pressure(blisk, xf, rf, th_p, g_p, gap)
+        th_l, th_r = _side_angles(blisk, np.repeat(x, nr), R.ravel(), gap)
         return R, th_l.reshape(len(x), nr), th_r.reshape(len(x), nr)
 
     x = np.linspace(x0, x1, max(8, int(np.ceil((x1 - x0) / res)) + 1))
@@ -399,12 +417,39 @@ def _offset_pressure(blisk, x, r, theta, grad, gap):
     return th + blisk.pitch
 
 
-def _split_sides(design, X, R, th_l, th_r):
-    """{name: (X, R, theta_left, theta_right)} for 'none' and 'left_right' designs."""
+def _split_sides(design, X, R, th_l, th_r, blisk=None):
+    """{name: (X, R, theta_left, theta_right)} for 'none' and 'left_right' designs.
+
+    The split surface lies at ``split_fraction`` of the angle between the (reduced) walls, and each
+    part reaches ``split_overlap / 2`` across it along the arc. With ``split_inset`` (a roughing twin)
+    the split faces are those of the finishing design, whose walls lie ``split_inset`` closer, taken at
+    the same lattice points, each moved ``split_inset`` into its part along its own normal: on a
+    twisted channel the split face is inclined to the arc, so an arc offset alone would come in less.
+    """
     if design.split == "none":
         return {"main": (X, R, th_l, th_r)}
-    mid = th_l + design.split_fraction * (th_r - th_l)
     half = 0.5 * design.split_overlap / R
-    if np.any(mid + half >= th_r) or np.any(mid - half <= th_l):
+    if design.split_inset > 0:
+        ref_l, ref_r = _side_angles(blisk, X.ravel(), R.ravel(), design.discharge_gap - design.split_inset)
+        ref_l, ref_r = _reduced(design, ref_l.reshape(X.shape), ref_r.reshape(X.shape))
+        mid = ref_l + design.split_fraction * (ref_r - ref_l)
+        left_face = mid + half - _arc_for_normal(X, R, mid + half, design.split_inset)
+        right_face = mid - half + _arc_for_normal(X, R, mid - half, design.split_inset)
+    else:
+        mid = th_l + design.split_fraction * (th_r - th_l)
+        left_face, right_face = mid + half, mid - half
+    if np.any(left_face >= th_r) or np.any(right_face <= th_l):
         raise GeometryError("electrode.split_overlap: the overlap is wider than a sub-electrode")
-    return {"left": (X, R, th_l, mid + half), "right": (X, R, mid - half, th_r)}
+    if np.any(left_face <= th_l) or np.any(right_face >= th_r):
+        raise GeometryError("electrode.split_inset: the split faces drawn in leave no sub-electrode")
+    return {"left": (X, R, th_l, left_face), "right": (X, R, right_face, th_r)}
+
+
+def _arc_for_normal(X, R, theta, distance):
+    """The angle [rad] by which to turn the lattice surface theta(X, R) about X so that it moves ``distance``
+    [mm] along its normal: distance / (R |n . e_theta|), with n from the lattice's tangents."""
+    P = cylindrical_to_cartesian(X, R, theta)
+    n = np.cross(np.gradient(P, axis=0), np.gradient(P, axis=1))
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    e_theta = np.stack([np.zeros_like(theta), -np.sin(theta), np.cos(theta)], axis=-1)
+    return distance / (R * np.abs(np.sum(n * e_theta, axis=-1)))

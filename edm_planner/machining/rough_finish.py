@@ -62,9 +62,14 @@ def twin_design(design, process):
     axial = design.axial_range
     if axial is not None:
         axial = (float(axial[0]) + extra, float(axial[1]) - extra)
-    # a split piece's cut face (split plane +- overlap / 2) comes in by the extra offset too
-    overlap = max(0.0, float(design.split_overlap) - 2.0 * extra) if design.split != "none" else design.split_overlap
-    return replace(design, discharge_gap=float(process.rough_electrode_gap), axial_range=axial, split_overlap=overlap)
+    # a split piece's cut face comes in by the extra offset too, along its normal: a front/rear cut plane
+    # (x = split +- overlap / 2) along X; a left/right split face, inclined to the arc on a twisted channel,
+    # by the design's split_inset (geometry.electrode._split_sides)
+    if design.split == "front_rear":
+        return replace(design, discharge_gap=float(process.rough_electrode_gap), axial_range=axial,
+                       split_overlap=max(0.0, float(design.split_overlap) - 2.0 * extra))
+    return replace(design, discharge_gap=float(process.rough_electrode_gap), axial_range=axial,
+                   split_inset=extra if design.split == "left_right" else 0.0)
 
 
 def axial_extent(design, electrode_id):

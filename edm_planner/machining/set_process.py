@@ -68,10 +68,11 @@ def add_roughing(designer, candidate):
             notes.append(f"no roughing twin for {p.label}: {rp.cycle.message}")
             continue
         extra = process.rough_electrode_gap - float(p.design.discharge_gap)
-        if rp.inset < extra - 0.01:
+        if rp.inset < extra - process.allowance_band:
             notes.append(f"the roughing twin of {p.label} lies only {rp.inset:.3f} mm inside its finishing electrode "
-                         f"somewhere (a left/right split face is drawn in along the arc, not along its normal): the "
-                         f"allowance may thin there (never below zero: its feed is certified)")
+                         f"somewhere (its extra offset {extra:.3f} mm less the allowance band "
+                         f"{process.allowance_band:g} mm): the allowance may thin there (never below zero: its feed "
+                         f"is certified)")
         twins.append(rp)
         twinned.append(i)
     if not twins:
