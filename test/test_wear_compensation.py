@@ -95,6 +95,12 @@ def test_the_blisk_program_runs_each_channel_moved_by_its_depth_and_changes_the_
     for leg in index:
         step = np.abs(np.diff(leg.samples, axis=0))
         assert step[:, ia].max() <= 0.0005 + 1e-12 and np.linalg.norm(step[:, :3], axis=1).max() <= 0.05
+    # a roughing twin (its legs erode in the rough regime) is named as one, not by the id it shares
+    rough = copy.deepcopy(plan)
+    rough.plan_id = "twin"
+    next(leg for leg in rough.cycle.legs if leg.phase == "feed").regime = "rough"
+    runs = program_runs(blisk_program_steps([rough.plan_id], 4), {rough.plan_id: PlanCycle.of_plan(rough)}, pitch)
+    assert [r.label for r in runs] == [f"rough-{rough.electrode_id}", f"rough-{rough.electrode_id} (replacement 1)"]
     # the stored plan is the fresh electrode's: depth 0, the certified samples bit for bit
     (single,) = program_runs([(plan.plan_id, 0)], {plan.plan_id: PlanCycle.of_plan(plan)})
     assert all(np.array_equal(a.samples, b.samples) for a, b in zip(single.legs, plan.cycle.legs))

@@ -203,6 +203,9 @@ class ElectrodeRun:
     @property
     def label(self):
         name = self.plan.electrode_id or f"electrode {self.order + 1}"
+        cycle = self.plan.cycle
+        if cycle is not None and any(leg.regime == "rough" for leg in cycle.legs):
+            name = f"rough-{name}"     # a roughing twin keeps its finishing electrode's id: say which it is
         return f"{name} (replacement {self.replacement})" if self.replacement else name
 
 
