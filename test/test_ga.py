@@ -14,7 +14,7 @@ Callbacks take a batch X (n, d), as the planner's do.
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from edm_planner.errors import EdmError, ErrorCode
@@ -164,12 +164,18 @@ def test_adaptive_rate_hand_cases():
 @settings(max_examples=100, deadline=None)
 @given(st.lists(st.floats(0.0, 10.0), min_size=2, max_size=30),
        st.floats(0.0, 1.0), st.floats(0.0, 1.0))
+@example([0.23857011978310366] * 3, 0.0, 1.0)          # their mean rounds above them: a converged population
 def test_adaptive_rate_within_bounds(values, k_high, k_low):
     f = np.asarray(values)
     f_max, f_avg = f.max(), f.mean()
     rate = adaptive_rate(f, f_max, f_avg, k_high, k_low)
     assert rate.shape == f.shape
     assert np.all(rate >= 0.0) and np.all(rate <= max(k_high, k_low))
+    if f_max <= f_avg:
+        # converged: every fitness equal, whatever the rounding of the mean says (three equal values can
+        # average a hair above themselves): all get k_high, the formula's value at the average
+        np.testing.assert_array_equal(rate, k_high)
+        return
     below = f < f_avg
     np.testing.assert_array_equal(rate[below], k_low)
     if f_max > f_avg:
