@@ -266,7 +266,8 @@ class Blisk:
         minus, plus = self._face_grids()
         return closed_blade_mesh(minus, plus)
 
-    def _face_grids(self, resolution=0.5):
+    def _face_parameters(self, resolution=0.5):
+        """(u, v) of the blade face grids at ``resolution``: (nu,), (nv,); grid row j is v[j]."""
         chord = np.ptp(self.blade.x) + 1e-9
         span = np.ptp(self.blade.r) + 1e-9
         nu = int(np.clip(np.ceil(2 * chord / resolution), 40, 400))
@@ -274,8 +275,50 @@ class Blisk:
         # cluster stations at the edges (cosine spacing), where curvature is highest
         u = 0.5 - 0.5 * np.cos(np.linspace(0, np.pi, nu))
         v = np.linspace(0, 1, nv)
-        uu, vv = np.meshgrid(u, v)
+        return u, v
+
+    def _face_grids(self, resolution=0.5):
+        uu, vv = np.meshgrid(*self._face_parameters(resolution))
         return (self.pressure_face.surface.evaluate(uu, vv), self.suction_face.surface.evaluate(uu, vv))
+
+    def _wall_parameters(self, profile, resolution):
+        """(x (nx,) [mm], theta (nth,) [rad]) of channel 0's hub or shroud patch; grid row i is theta[i]."""
+        x0, x1 = self.axial_range
+        margin = 0.25 * (x1 - x0)       # the patches reach a margin beyond the blade
+        lo = max(self.hub.x_range[0], self.shroud.x_range[0], x0 - margin)
+        hi = min(self.hub.x_range[1], self.shroud.x_range[1], x1 + margin)
+        th_lo = float(self.blade.theta_minus.min())
+        th_hi = float(self.blade.theta_plus.max()) + self.pitch
+        prof = profile.sample(lo, hi, step=resolution)
+        r_mean = prof[:, 1].mean()
+        nth = int(np.clip(np.ceil((th_hi - th_lo) * r_mean / resolution), 8, 400))
+        return prof[:, 0], np.linspace(th_lo, th_hi, nth)
+
+    def channel_mesh_parameters(self, resolution=0.5):
+        """The true-surface parameters of every vertex of channel 0's :meth:`channel_meshes`.
+
+        Parameters
+        ----------
+        resolution : float
+            As for :meth:`channel_meshes` [mm].
+
+        Returns
+        -------
+        dict
+            ``label -> (S, C, 2) float``: vertex ``s * C + c`` of that mesh is the
+            true surface at ``params[s, c]``. Suction and pressure: the face
+            spline's (u, v) (the pressure wall is blade 0's pressure face turned
+            by one pitch); hub and shroud: (x [mm], theta [rad]) on the surface
+            of revolution. Channel k's meshes are these turned by ``k * pitch``.
+        """
+        u, v = self._face_parameters(resolution)
+        uu, vv = np.meshgrid(u, v)
+        out = {"suction": np.stack([uu, vv], axis=-1), "pressure": np.stack([uu, vv], axis=-1)}
+        for label, profile in (("hub", self.hub), ("shroud", self.shroud)):
+            x, th = self._wall_parameters(profile, resolution)
+            xx, tt = np.meshgrid(x, th)
+            out[label] = np.stack([xx, tt], axis=-1)
+        return out
 
     def channel_meshes(self, channel=0, resolution=0.5):
         """Labelled surface meshes bounding channel k, normals pointing into the channel.
@@ -308,18 +351,9 @@ class Blisk:
         pressure = cylindrical_to_cartesian(*_cyl(minus, self.pitch))
         meshes = {"suction": face_grid_mesh(plus), "pressure": face_grid_mesh(pressure)}
         # hub and shroud patches over the channel sector, a margin beyond the blade
-        x0, x1 = self.axial_range
-        margin = 0.25 * (x1 - x0)
-        lo = max(self.hub.x_range[0], self.shroud.x_range[0], x0 - margin)
-        hi = min(self.hub.x_range[1], self.shroud.x_range[1], x1 + margin)
-        th_lo = float(self.blade.theta_minus.min())
-        th_hi = float(self.blade.theta_plus.max()) + self.pitch
         for label, profile in (("hub", self.hub), ("shroud", self.shroud)):
-            prof = profile.sample(lo, hi, step=resolution)
-            r_mean = prof[:, 1].mean()
-            nth = int(np.clip(np.ceil((th_hi - th_lo) * r_mean / resolution), 8, 400))
-            th = np.linspace(th_lo, th_hi, nth)
-            grid = cylindrical_to_cartesian(prof[None, :, 0], prof[None, :, 1], th[:, None])
+            x, th = self._wall_parameters(profile, resolution)
+            grid = cylindrical_to_cartesian(x[None, :], profile.radius_at(x)[None, :], th[:, None])
             meshes[label] = face_grid_mesh(grid)
         # orient every normal into the channel
         for label, mesh in meshes.items():

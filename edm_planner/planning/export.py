@@ -10,7 +10,9 @@ blisk's rotation axis, ``theta = atan2(z, y)``)::
     workpiece.stl   the channel sector in W: suction, pressure, hub and shroud
                     patches concatenated in this order (face ranges in plan.json);
                     binary, float32: a reference for viewers, the exact check uses
-                    the model surfaces
+                    the model surfaces; plan.json states per surface how far the
+                    mesh lies into the channel and into the material (upper bounds,
+                    :mod:`edm_planner.geometry.mesh_deviation`)
     axes.csv        header ``X [mm],Y [mm],...``, one row per sample
 
 :func:`write_plan` writes the directory, :func:`read_plan` reads and validates
@@ -36,6 +38,7 @@ import trimesh
 from .. import __version__
 from ..errors import EdmError, ErrorCode
 from ..interference import SURFACES
+from ..geometry import mesh_deviation
 from ..geometry.frames import rotation_about_x
 from ..machine.kinematics import axis_poses
 from .plan import AXIS_NAMES
@@ -63,6 +66,12 @@ MAX_VERTEX_STEP = 0.05
 RIGID_TOLERANCE = 1e-9
 #: slack on exact distances (converged Gauss-Newton / Newton) when bounding them [mm]
 EXACT_TOLERANCE = 1e-6
+#: plan.json's statement on electrode.stl: it is the checked mesh itself, not an approximation of it
+ELECTRODE_DEVIATION = {
+    "kind": "exact", "deviation": 0.0,
+    "statement": "the very mesh whose clearances were checked, its vertices written with shortest round-trip "
+                 "digits: it reads back bit-exact, so a check against it measures the checked electrode",
+}
 
 
 class PlanFileError(EdmError):
@@ -131,6 +140,26 @@ def _cycle_csv(axis_names, cycle):
     return "\n".join(rows) + "\n"
 
 
+def _workpiece_deviation(blisk, channel, resolution, meshes):
+    """plan.json's statement of how far workpiece.stl (float32, as written) lies from the true surfaces.
+
+    Per surface, the upper bounds ``into_channel`` and ``into_material`` [mm] of
+    :func:`~edm_planner.geometry.mesh_deviation.channel_mesh_deviation`, the
+    sampled extremes they rest on and the remainder added between samples.
+    """
+    dev = mesh_deviation.channel_mesh_deviation(blisk, channel, resolution, meshes, float32=True)
+    return {
+        "kind": mesh_deviation.KIND,
+        "units": "mm",
+        "definition": dict(mesh_deviation.DEFINITION,
+                           measured="the largest sample alone: a deviation the mesh attains, so the true largest "
+                                    "lies between it and the bound"),
+        "method": mesh_deviation.METHOD,
+        "float32": True,
+        "surfaces": {s: json_safe(dev[s].to_dict()) for s in SURFACES},
+    }
+
+
 def write_plan(plan, out_dir, blisk, workpiece_resolution=0.5):
     """Write a plan as an export directory (format ``edm_planner.plan/1``).
 
@@ -145,7 +174,8 @@ def write_plan(plan, out_dir, blisk, workpiece_resolution=0.5):
     blisk : Blisk
         The geometry the plan was made for (its channel sector goes to workpiece.stl).
     workpiece_resolution : float
-        Edge length of the workpiece surface meshes [mm].
+        Edge length of the workpiece surface meshes [mm]; plan.json states their
+        deviation from the true surfaces per surface and side (upper bounds).
 
     Returns
     -------
@@ -183,6 +213,7 @@ def write_plan(plan, out_dir, blisk, workpiece_resolution=0.5):
             start += len(meshes[s].faces)
         workpiece = out / FILES["workpiece"]
         _write_atomic(workpiece, trimesh.util.concatenate([meshes[s] for s in SURFACES]).export(file_type="stl"))
+        deviation = _workpiece_deviation(blisk, plan.channel, workpiece_resolution, meshes)
         axes = out / FILES["axes"]
         _write_atomic(axes, _axes_csv(names, samples))
         doc = {
@@ -214,9 +245,10 @@ def write_plan(plan, out_dir, blisk, workpiece_resolution=0.5):
             "files": {
                 "electrode": {"name": FILES["electrode"], "sha256": _sha256(electrode), "encoding": "ascii",
                               "vertices": len(plan.electrode_mesh.vertices),
-                              "faces": len(plan.electrode_mesh.faces)},
+                              "faces": len(plan.electrode_mesh.faces), "deviation": ELECTRODE_DEVIATION},
                 "workpiece": {"name": FILES["workpiece"], "sha256": _sha256(workpiece), "encoding": "binary",
-                              "resolution": float(workpiece_resolution), "surfaces": ranges},
+                              "resolution": float(workpiece_resolution), "surfaces": ranges,
+                              "deviation": deviation},
                 "axes": {"name": FILES["axes"], "sha256": _sha256(axes)},
             },
         }
