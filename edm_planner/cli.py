@@ -94,13 +94,16 @@ def _parser():
     g.add_argument("-v", "--verbose", action="store_true")
     x = sub.add_parser("export", help="time a plan on a machine and write the NC program and the timed CSV",
                        description="Time a certified plan (toppra, the machine's velocity, acceleration and jerk "
-                                   "limits) and write <plan_id>.nc (ISO G21 G90 G93 G01, inverse-time feed) and "
-                                   "<plan_id>.csv (time, then position, velocity, acceleration per axis). A plan "
-                                   "with a machining cycle is written whole (approach, feed, process, return, "
-                                   "retract; each leg timed rest to rest, '(PHASE ...)' lines, phase columns). An "
-                                   "electrode set (its directory or id) is written as one program, a tool change "
-                                   "(T M06) before each electrode; with --all-channels the whole blisk: each "
-                                   "electrode through every channel (A indexed at the home point), then the next.")
+                                   "limits) and write <plan_id>.nc in the machine's NC dialect (its nc: section, "
+                                   "or --dialect: G94 where no rotary axis moves, G93 where one does, F within the "
+                                   "control's range) and <plan_id>.csv (time, then position, velocity, "
+                                   "acceleration per axis). A plan with a machining cycle is written whole (clear, "
+                                   "approach, feed, process, return, retract, clear; each leg timed rest to rest, "
+                                   "'(PHASE ...)' lines, phase columns). An electrode set (its directory or id) is "
+                                   "written as one program, a tool change at the clear position before each "
+                                   "electrode; with --all-channels the whole blisk: each electrode through every "
+                                   "channel (A indexed at the clear position), then the next, as a main program "
+                                   "calling one subprogram per distinct channel pass (--nc-structure flat: DNC).")
     x.add_argument("source", metavar="PLAN",
                    help="a plan export directory, an electrode-set directory (set.json, from `edm-plan plan` "
                         "without a design), or a plan, set or program id in the plan store")
@@ -109,6 +112,12 @@ def _parser():
     x.add_argument("--machine", metavar="FILE.yaml", help="machine file (default: config/machine.yaml)")
     x.add_argument("--out", metavar="DIR", help="where the files go (default: the export directory, or .)")
     x.add_argument("--format", choices=("nc", "csv", "both"), default="both")
+    x.add_argument("--dialect", metavar="NAME|FILE.yaml",
+                   help="NC dialect: a shipped one (iso_fanuc, beckhoff_edm_plus) or a dialect file (default: "
+                        "the machine file's nc.dialect)")
+    x.add_argument("--nc-structure", choices=("subprograms", "flat"),
+                   help="subprograms (a main program calling each distinct channel pass) or flat (DNC: every "
+                        "block in one program); default: the machine file's nc.structure")
     _store_argument(x)
     x.add_argument("-v", "--verbose", action="store_true")
     r = sub.add_parser("rough", help="plan the plunge roughing of one channel (Chen & Dong)",
@@ -500,7 +509,8 @@ def _export(args, out):
     import numpy as np
 
     from .machine.config import default_machine_path, load_machine
-    from .machine.nc import nc_program, nc_sequence_program, program_csv, trajectory_csv
+    from .machine.nc import program_csv, trajectory_csv
+    from .machine.post import ProgramRun, write_program
     from .machine.trajectory import plan_trajectory, time_run
     from .machining.program import program_runs
 
@@ -509,25 +519,25 @@ def _export(args, out):
     machine = load_machine(machine_file)
     name = job["name"]
     plan = job["plans"][job["steps"][0][0]]
-    if job["kind"] == "plan" and plan.cycle is None:                  # a feed-only plan: as it always was
+    if job["kind"] == "plan" and plan.cycle is None:                  # a feed-only plan: its start pose to its end
         arrays = plan_trajectory(plan.samples, plan.axis_names, machine, final_pose=plan.final_pose)
-        nc = nc_program(arrays, plan.plan_id, plan.geometry_id, plan.channel, plan.electrode_id)
+        posts = [ProgramRun(arrays, plan.electrode_id or "electrode", plan.plan_id)]
         table, timed, what = trajectory_csv(arrays), [arrays], "feed"
     elif job["kind"] == "plan":
         runs = program_runs(job["steps"], job["plans"], job["pitch"])
         arrays = time_run(runs[0].legs, machine)
-        nc = nc_program(arrays, plan.plan_id, plan.geometry_id, plan.channel, plan.electrode_id)
+        posts = [ProgramRun(arrays, runs[0].label, plan.plan_id)]
         table, timed, what = trajectory_csv(arrays), [arrays], f"whole cycle, {len(plan.cycle.legs)} legs"
     else:
         runs = program_runs(job["steps"], job["plans"], job["pitch"])
         cache = {}
         timed = [time_run(r.legs, machine, cache=cache) for r in runs]
-        nc = nc_sequence_program([(a, r.label, r.plan.plan_id) for a, r in zip(timed, runs)], name,
-                                 job["geometry_id"], job["kind"])
+        posts = [ProgramRun(a, r.label, r.plan.plan_id) for a, r in zip(timed, runs)]
         table = program_csv(timed)
         channels = sorted({c for r in runs for c in r.channels})
         what = (f"{job['kind'].replace('_', ' ')}: {len(runs)} electrode(s) "
                 f"({', '.join(r.label for r in runs)}) in {len(channels)} channel(s), {len(runs)} tool change(s)")
+    nc, stats = write_program(posts, name, job["geometry_id"], job["kind"], machine, args.dialect, args.nc_structure)
     where = pathlib.Path(args.out or (args.source if pathlib.Path(args.source).is_dir() else "."))
     files = []
     try:
@@ -547,6 +557,10 @@ def _export(args, out):
     print(f"{name} on machine {machine.name!r} ({machine_file}): {what}; {points} points, {duration:.3f} s"
           + (" without tool changes" if len(timed) > 1 else "") + f"; peak velocity [mm/s, rad/s]: {peaks}",
           file=out)
+    print(f"NC program: {stats.blocks} motion blocks from {stats.points} timed points (points within "
+          f"{stats.tolerance:g} mm of a block's line left out), {stats.subprograms} subprogram(s) called "
+          f"{stats.calls} time(s), {len(nc.encode())} bytes, dialect {stats.dialect}"
+          + (f"; {'; '.join(stats.notes)}" if stats.notes else ""), file=out)
     for f in files:
         print(f"wrote {f}", file=out)
     return 0

@@ -19,7 +19,8 @@ from edm_planner.errors import EdmError, ErrorCode
 from edm_planner.geometry.electrode import ElectrodeDesign
 from edm_planner.machine.config import default_machine_path, load_machine
 from edm_planner.machine.kinematics import axis_poses
-from edm_planner.machine.nc import PHASE_COLUMNS, nc_program, nc_sequence_program, parse_nc, program_csv
+from edm_planner.machine.nc import PHASE_COLUMNS, program_csv
+from edm_planner.machine.post import ProgramRun, parse_nc, write_program
 from edm_planner.machine.trajectory import time_run
 from edm_planner.machining.cycle import PHASES
 from edm_planner.machining.program import (INDEX, PlanCycle, blisk_program_steps, program_runs, sequence_id_for,
@@ -73,7 +74,7 @@ def test_a_plan_with_its_cycle_round_trips_bit_for_bit(rear, tmp_path):
     for a, b in zip(c0.legs, c1.legs):
         assert a.samples.tobytes() == b.samples.tobytes()
         np.testing.assert_array_equal(a.clearance_lower_bound, b.clearance_lower_bound)
-    assert c1.reach.to_dict() == c0.reach.to_dict()
+    assert c1.reach.to_dict() == c0.reach.to_dict() and c1.clear_zone == c0.clear_zone is not None
     assert (c1.margin, c1.certified, c1.message) == (c0.margin, c0.certified, c0.message)
     assert c1.samples.tobytes() == c0.samples.tobytes() and c1.leg_ranges == c0.leg_ranges
     assert c1.phase_ranges == c0.phase_ranges and [p for p, _, _ in c1.phase_ranges] == list(PHASES)
@@ -176,39 +177,49 @@ def test_shift_to_channel_and_the_four_axis_refusal():
     assert e.value.code == ErrorCode.INVALID_REQUEST and "no A axis" in e.value.message
 
 
-def test_program_runs_index_at_the_home_point_and_change_tools(rear):
+def test_program_runs_index_at_the_clear_position_and_change_tools(rear):
     g, electrode, plan = rear
     pitch = g.blisk.pitch
     a, b = PlanCycle.of_plan(plan), PlanCycle.of_plan(_second(plan))
     steps = blisk_program_steps([a.plan_id, b.plan_id], 3)
     runs = program_runs(steps, {a.plan_id: a, b.plan_id: b}, pitch)
     assert [r.plan.plan_id for r in runs] == [a.plan_id, b.plan_id] and [r.channels for r in runs] == [[0, 1, 2]] * 2
-    ia = plan.axis_names.index("A")
-    n_legs = len(plan.cycle.legs)
+    ia, ix = plan.axis_names.index("A"), plan.axis_names.index("X")
+    cycle_phases = [leg.phase for leg in plan.cycle.legs]
+    assert cycle_phases[-2:] == ["retract", "clear"]
+    per_channel = len(cycle_phases) + 1                         # the clear leg reversed first
+    zone = plan.cycle.clear_zone
     for run in runs:
         phases = [leg.phase for leg in run.legs]
-        assert phases == list(p.phase for p in plan.cycle.legs) + [INDEX] + \
-            [p.phase for p in plan.cycle.legs] + [INDEX] + [p.phase for p in plan.cycle.legs]
+        one = ["clear"] + cycle_phases
+        assert phases == one + [INDEX] + one + [INDEX] + one
         for x, y in zip(run.legs[:-1], run.legs[1:]):           # rest to rest, consecutive legs meet
             assert np.array_equal(x.samples[-1], y.samples[0])
-        home = plan.cycle.legs[0].samples[0]
-        for k, idx in zip((1, 2), (n_legs, 2 * n_legs + 1)):
+        clear = plan.cycle.legs[-1].samples[-1]
+        assert clear[ix] == zone.clear_x and run.legs[0].samples[0][ix] == zone.clear_x
+        for k, idx in zip((1, 2), (per_channel, 2 * per_channel + 1)):
             leg = run.legs[idx]
-            assert leg.channel == k
-            # the index turns A only, by one pitch, at the home point
+            assert leg.channel == k and len(leg.samples) == 2
+            # the index turns A only, by one pitch, at the clear position, certified by the clear zone
             np.testing.assert_array_equal(np.delete(leg.samples, ia, axis=1),
-                                          np.repeat(np.delete(home, ia)[None], len(leg.samples), axis=0))
+                                          np.repeat(np.delete(clear, ia)[None], 2, axis=0))
             assert leg.samples[-1, ia] - leg.samples[0, ia] == pytest.approx(pitch, abs=1e-15)
-            assert np.all(np.diff(leg.samples[:, ia]) > 0) and np.diff(leg.samples[:, ia]).max() <= 0.0005 + 1e-15
+            np.testing.assert_array_equal(leg.clearance_lower_bound, zone.separation(zone.clear_x))
         # channel k's cycle is channel 0's with A + k pitch: the feed of channel 2 ends at its machining pose
-        feed2 = run.legs[2 * n_legs + 3].samples
+        feed2 = run.legs[2 * per_channel + 2 + 2].samples
+        assert run.legs[2 * per_channel + 2 + 2].phase == "feed"
         assert feed2[-1, ia] == pytest.approx(plan.samples[-1, ia] + 2 * pitch, abs=1e-12)
-    # the home point is outside the blades' axial range: the index turn cannot touch a blade, and hub and
-    # shroud are surfaces of revolution whose clearance A does not change
-    pose = axis_poses(plan.final_pose, plan.axis_names, plan.cycle.legs[0].samples[:1])[0]
+    # at the clear position the electrode is beyond the part's axial envelope by the clearance: every vertex
+    pose = axis_poses(plan.final_pose, plan.axis_names, clear[None])[0]
     x = electrode.mesh.vertices @ pose[:3, 0] + pose[0, 3]
-    lo, hi = g.blisk.axial_range
-    assert x.min() > hi or x.max() < lo
+    lo, hi = zone.envelope
+    assert (x.min() - hi if zone.side > 0 else lo - x.max()) >= zone.separation(zone.clear_x) >= 2.0 - 1e-9
+    assert lo <= min(g.blisk.hub.x_range[0], g.blisk.axial_range[0]) and hi >= g.blisk.axial_range[1]
+    # a cycle without a clear zone (stored before clear legs) cannot index: refused, not run uncertified
+    bare = replace(a, cycle=replace(plan.cycle, clear_zone=None))
+    with pytest.raises(EdmError) as e:
+        program_runs(blisk_program_steps([a.plan_id], 2), {a.plan_id: bare}, pitch)
+    assert e.value.code == ErrorCode.INVALID_REQUEST and "no clear position" in e.value.message
     # a plan without a cycle cannot be part of a program
     with pytest.raises(EdmError) as e:
         program_runs([(a.plan_id, 0)], {a.plan_id: replace(a, cycle=None)}, pitch)
@@ -232,53 +243,56 @@ def test_the_program_nc_marks_phases_and_tool_changes_and_parses_back(rear, mach
     steps = blisk_program_steps([a.plan_id, b.plan_id], 3)
     runs = program_runs(steps, {a.plan_id: a, b.plan_id: b}, g.blisk.pitch)
     cache = {}
-    trajectories = [(time_run(r.legs, machine, cache=cache), r.plan.electrode_id, r.plan.plan_id) for r in runs]
+    timed = [time_run(r.legs, machine, cache=cache) for r in runs]
     # the cycle legs are timed once: channels 1 and 2 (and the second electrode, same samples) reuse channel 0's
-    arrays = trajectories[0][0]
+    arrays = timed[0]
     single = time_run(program_runs([(a.plan_id, 0)], {a.plan_id: a})[0].legs, machine)
     n = len(single.times)
     np.testing.assert_array_equal(arrays.times[:n], single.times)
     ia = list(arrays.axis_names).index("A")
-    text = nc_sequence_program(trajectories, "prog", plan.geometry_id)
+    text, stats = write_program([ProgramRun(t, r.label, r.plan.plan_id) for t, r in zip(timed, runs)], "prog",
+                                plan.geometry_id, "blisk_program", machine, structure="flat")
     back = parse_nc(text)
-    assert back["plan_id"] == "prog" and back["geometry_id"] == plan.geometry_id
-    total = sum(len(t.times) for t, _, _ in trajectories)
-    assert len(back["positions"]) == total
+    assert back["plan_id"] == "prog" and back["geometry_id"] == plan.geometry_id.lower()
     # one trajectory per electrode, a tool change before each naming the electrode and its plan
     assert [t for t, _, _ in back["tool_changes"]] == [1, 2]
-    assert [i for _, i, _ in back["tool_changes"]] == [0, len(arrays.times)]
-    assert "ELECTRODE rear PLAN " + plan.plan_id in back["tool_changes"][0][2]
-    assert "ELECTRODE front PLAN " + "f" * 16 in back["tool_changes"][1][2]
-    assert back["trajectories"] == [(0, len(arrays.times) - 1), (len(arrays.times), total - 1)]
+    assert "ELECTRODE 1 OF 2 REAR" in back["tool_changes"][0][2] and "FRONT" in back["tool_changes"][1][2]
+    assert len(back["trajectories"]) == 2
     # every leg start is marked, in order, with its channel: 3 cycles and 2 indexes per electrode
     names = [p for p, _, _ in back["phases"]]
-    cycle_phases = [leg.phase for leg in plan.cycle.legs]
-    per_electrode = cycle_phases + [INDEX] + cycle_phases + [INDEX] + cycle_phases
+    one = ["clear"] + [leg.phase for leg in plan.cycle.legs]
+    per_electrode = one + [INDEX] + one + [INDEX] + one
     assert names == per_electrode * 2
-    marks = [(m.phase, m.channel, m.index) for m in arrays.phases]
-    assert [(p, c, i) for p, c, i in back["phases"][:len(marks)]] == marks
-    # positions and times as timed (NC rounding: 0.1 um, 1e-5 deg; feeds to 7 digits)
-    for (t, _, _), (first, last) in zip(trajectories, back["trajectories"]):
-        p = back["positions"][first:last + 1]
-        assert np.abs(p[:, :3] - t.positions[:, :3]).max() <= 0.5e-4 + 1e-12
-        assert np.abs(p[:, 3:] - t.positions[:, 3:]).max() <= math.radians(0.5e-5) + 1e-15
-        np.testing.assert_allclose(back["times"][first:last + 1], t.times, rtol=1e-6, atol=1e-6)
+    assert [(p, c) for p, c, _ in back["phases"][:len(arrays.phases)]] == [(m.phase, m.channel) for m in arrays.phases]
+    # the program's points are timed points (straight legs merged), within the rounding (0.1 um, 1e-4 deg),
+    # at their times
+    for t, (first, last) in zip(timed, back["trajectories"]):
+        p, tt = back["positions"][first:last + 1], back["times"][first:last + 1]
+        j = np.searchsorted(t.times, tt - 1e-3)
+        j = np.array([k + int(np.argmin(np.abs(t.times[k:k + 3] - x))) for k, x in zip(j, tt)])
+        assert j[0] == 0 and j[-1] == len(t.times) - 1 and np.all(np.diff(j) > 0)
+        assert np.abs(p[:, :3] - t.positions[j, :3]).max() <= 0.5e-4 + 1e-12
+        assert np.abs(p[:, 3:] - t.positions[j, 3:]).max() <= math.radians(0.5e-4) + 1e-15
+        np.testing.assert_allclose(tt, t.times[j], rtol=1e-5, atol=1e-4)
+    assert stats.blocks < stats.points / 4                       # straight legs are one block each
     # each channel's machining pose (where its process starts): A one pitch further than the channel before
     assert [m.channel for m in arrays.phases if m.phase == "feed"] == [0, 1, 2]
     a_pose = [arrays.positions[m.index, ia] for m in arrays.phases if m.phase == "process"][::len(
         [leg for leg in plan.cycle.legs if leg.phase == "process"])]
     np.testing.assert_allclose(np.diff(a_pose), g.blisk.pitch, atol=1e-12)
     # the CSV: one row per point, phase columns after the numbers
-    csv = program_csv([t for t, _, _ in trajectories])
+    csv = program_csv(timed)
     rows = csv.splitlines()
     assert rows[0].split(",")[-len(PHASE_COLUMNS):] == PHASE_COLUMNS
-    assert len(rows) - 1 == total
-    last = rows[-1].split(",")
-    assert last[-6:-1] == ["retract", "2", "1", "front", "f" * 16]
-    # the single plan's NC: phases marked, nothing else changes in the format
-    one = parse_nc(nc_program(single, plan.plan_id, plan.geometry_id, 0, "rear"))
-    assert [p for p, _, _ in one["phases"]] == cycle_phases and one["tool_changes"] == []
-    assert one["trajectories"] == [(0, n - 1)]
+    assert len(rows) - 1 == sum(len(t.times) for t in timed)
+    import csv as csv_module
+    last = next(csv_module.reader([rows[-1]]))
+    assert last[-6:-1] == ["clear", "2", "1", "front", "f" * 16]
+    # the single plan's NC: its phases, one tool
+    text, _ = write_program([ProgramRun(single, "rear", plan.plan_id)], plan.plan_id, plan.geometry_id, "plan",
+                            machine)
+    one_back = parse_nc(text)
+    assert [p for p, _, _ in one_back["phases"]] == one and len(one_back["tool_changes"]) == 1
 
 
 def test_a_program_leaving_the_a_travel_is_refused(rear, machine, tmp_path):
@@ -329,23 +343,23 @@ def _set_dir(rear, root):
 
 def test_export_a_plan_with_its_cycle_and_an_electrode_set(rear, tmp_path):
     g, electrode, plan = rear
-    front = _set_dir(rear, tmp_path / "set")
+    _set_dir(rear, tmp_path / "set")
     # one plan export: the whole cycle, phases marked, the CSV with its phase columns
     rc, out, err = _run(["export", str(tmp_path / "set" / "rear"), "--out", str(tmp_path / "one"), "--store", "none"])
     assert rc == 0, err
-    assert f"whole cycle, {len(plan.cycle.legs)} legs" in out
+    assert f"whole cycle, {len(plan.cycle.legs)} legs" in out and "dialect iso_fanuc" in out
     back = parse_nc((tmp_path / "one" / f"{plan.plan_id}.nc").read_text())
-    assert [p for p, _, _ in back["phases"]] == [leg.phase for leg in plan.cycle.legs]
+    one = ["clear"] + [leg.phase for leg in plan.cycle.legs]
+    assert [p for p, _, _ in back["phases"]] == one
     rows = (tmp_path / "one" / f"{plan.plan_id}.csv").read_text().splitlines()
-    assert len(rows) - 1 == len(back["positions"]) and rows[1].split(",")[-6] == "approach"
+    assert len(rows) - 1 > len(back["positions"]) and rows[1].split(",")[-6] == "clear"
     # the set directory: one program in the set's channel, front first (set.json's order), a tool call each
     rc, out, err = _run(["export", str(tmp_path / "set"), "--out", str(tmp_path / "two"), "--store", "none"])
     assert rc == 0, err
     assert "electrode set: 2 electrode(s) (front, rear) in 1 channel(s)" in out
     back = parse_nc((tmp_path / "two" / ("5" * 16 + ".nc")).read_text())
-    assert [(t, "ELECTRODE front" in c) for t, _, c in back["tool_changes"]] == [(1, True), (2, False)]
-    assert plan.plan_id in back["tool_changes"][1][2] and front.plan_id in back["tool_changes"][0][2]
-    assert [p for p, _, _ in back["phases"]] == [leg.phase for leg in plan.cycle.legs] * 2
+    assert [(t, "FRONT" in c) for t, _, c in back["tool_changes"]] == [(1, True), (2, False)]
+    assert [p for p, _, _ in back["phases"]] == one * 2
     assert len(back["trajectories"]) == 2
     # a plan from the store that belongs to a set: --all-channels names the set to export instead
     store = tmp_path / "store"
@@ -385,5 +399,8 @@ def test_export_all_channels_writes_one_program_for_the_whole_blisk(rear, tmp_pa
     # each channel's feed starts one pitch further in A (joint A in the NC: degrees, read back in rad)
     ia = back["axis_names"].index("A")
     a = back["positions"][[i for _, i in feeds], ia]
-    np.testing.assert_allclose(np.diff(a), g.blisk.pitch, atol=2 * math.radians(0.5e-5))
+    np.testing.assert_allclose(np.diff(a), g.blisk.pitch, atol=2 * math.radians(0.5e-4))
     assert back["times"][-1] > n * 30.0
+    # one subprogram, called in every channel after a G52 shift of A: the size does not grow with the channels
+    assert text.count("M98 P1001") == n and text.count("\nO1001") == 1 and "1 subprogram(s) called" in out
+    assert len(text.encode()) < 200_000

@@ -128,7 +128,7 @@ def test_failures_exit_with_their_error_code(setup, tmp_path):
 @pytest.mark.slow
 def test_plan_is_kept_in_the_store_and_exported_to_nc_and_csv(setup, tmp_path):
     """plan -> store -> the same request from the store; export by id and by directory agree; NC reads back."""
-    from edm_planner.machine.nc import parse_nc
+    from edm_planner.machine.post import parse_nc
 
     yaml, cache, _ = setup
     store = str(tmp_path / "store")
@@ -154,12 +154,12 @@ def test_plan_is_kept_in_the_store_and_exported_to_nc_and_csv(setup, tmp_path):
     nc = parse_nc(by_id)
     assert nc["plan_id"] == plan_id and nc["axis_names"] == ("X", "Y", "Z", "A", "C")
     csv = np.loadtxt(tmp_path / "nc" / f"{plan_id}.csv", delimiter=",", skiprows=1)
-    np.testing.assert_allclose(nc["times"], csv[:, 0], atol=1e-3)
+    assert nc["times"][-1] == pytest.approx(csv[-1, 0], rel=1e-5) and len(nc["times"]) <= len(csv)
     # the program ends at the machining pose of channel 5: joint A = 5 pitches (degrees in the NC text)
     g = load_geometry(yaml)
     assert csv[-1, 1 + 3 * 3] == pytest.approx(5 * g.blisk.pitch, abs=1e-9)
     np.testing.assert_allclose(nc["positions"][-1, 3], 5 * g.blisk.pitch, atol=1e-6)
-    assert "(UNITS X=MM" in by_id and "G93" in by_id
+    assert "(X JOINT EDM_X MM)" in by_id and "G93" in by_id and "T1 M06" in by_id
     # --replan plans anew (progress of the search) and finds the same plan
     rc, out, err = _run(argv + ["--out", str(tmp_path / "c"), "--replan", "--progress", "bar"])
     assert rc == 0 and f"plan {plan_id}" in out and "search" in err and "%|" in err   # a tqdm bar
@@ -183,7 +183,7 @@ def test_export_and_store_errors(setup, tmp_path):
 def test_rough_plans_keeps_and_exports_a_roughing_plan(tmp_path):
     import json
 
-    from edm_planner.machine.nc import parse_nc
+    from edm_planner.machine.post import parse_nc
 
     store = str(tmp_path / "store")
     argv = ["rough", "--geometry", str(CONFIG / "default_blisk.yaml"), "--channel", "4", "--store", store]
@@ -203,7 +203,7 @@ def test_rough_plans_keeps_and_exports_a_roughing_plan(tmp_path):
     rc, out, err = _run(["export", plan_id, "--store", store, "--out", str(tmp_path / "nc"), "--format", "nc"])
     assert rc == 0, err
     nc = parse_nc((tmp_path / "nc" / f"{plan_id}.nc").read_text())
-    assert nc["plan_id"] == plan_id and len(nc["positions"]) == len(axes)
+    assert nc["plan_id"] == plan_id and 2 <= len(nc["positions"]) <= len(axes)
     rc, _, err = _run(argv + ["--tool-radius", "50"])
     assert rc == ErrorCode.INFEASIBLE and "exceeds r_max" in err
     rc, _, err = _run(argv + ["--allowance", "-1"])

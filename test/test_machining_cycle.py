@@ -52,7 +52,7 @@ def test_the_cycle_runs_every_phase_in_order_and_is_certified(rear):
     ret = dict((p, (a, b)) for p, a, b in cycle.phase_ranges)["return"]
     assert np.array_equal(samples[ret[0]:ret[1] + 1], plan.samples[::-1])
     # approach and retract: the same straight leg both ways, starting and ending at one point further out
-    assert np.array_equal(samples[0], samples[-1])
+    assert np.array_equal(samples[0], cycle.legs[-2].samples[-1]) and cycle.legs[-1].phase == "clear"
     assert np.linalg.norm(samples[0][:3] - plan.samples[0][:3]) <= CycleOptions().approach_distance + 1e-9
     assert np.linalg.norm(samples[0][:3] - plan.samples[0][:3]) >= 0.5 * CycleOptions().approach_distance
     outwards = np.sign(plan.samples[0][0] - plan.samples[-1][0])
@@ -153,8 +153,10 @@ def test_the_proof_leaves_out_only_moves_that_retrace_others(rear):
     assert labels[:2] == ["approach", "feed"] and all(leg.phase == "process" for leg in kept[2:])
     assert not any("back" in lab for lab in labels)
     dropped = [leg for leg in cycle.legs if leg not in kept]
-    assert {leg.phase for leg in dropped} == {"process", "return", "retract"}
-    assert all(retraces(leg.samples, [k.samples for k in kept]) for leg in dropped)
+    assert {leg.phase for leg in dropped} == {"process", "return", "retract", "clear"}
+    # every one retraces a kept leg, but the clear leg: out along X from the home point, beyond the part
+    assert all(retraces(leg.samples, [k.samples for k in kept]) for leg in dropped if leg.phase != "clear")
+    assert dropped[-1].phase == "clear" and dropped[-1].samples[0].tolist() == cycle.legs[0].samples[0].tolist()
     assert not retraces(cycle.legs[1].samples[:-5], [k.samples for k in kept if k.phase != "feed"])
     samples, breaks = proof_samples(cycle)
     assert len(samples) < 0.6 * len(cycle.samples)
@@ -251,10 +253,44 @@ def test_write_set_of_a_one_piece_result(rear, tmp_path):
     assert len(np.unique(colours[:, :3], axis=0)) > 10          # the stock coloured, not one flat colour
     pj = json.loads((tmp_path / "rear" / "plan.json").read_text())
     assert [p["phase"] for p in pj["cycle"]["phases"]] == list(PHASES)
+    assert pj["cycle"]["clear_zone"]["clear_x_mm"] == cycle.clear_zone.clear_x
     rows = (tmp_path / "rear" / "cycle.csv").read_text().splitlines()
     assert rows[0].startswith("phase,leg,X_mm,Y_mm,Z_mm,A_rad,C_rad")
     assert len(rows) - 1 == len(cycle.samples)
-    assert rows[1].split(",")[0] == "approach" and rows[-1].split(",")[0] == "retract"
+    assert rows[1].split(",")[0] == "approach" and rows[-1].split(",")[0] == "clear"
+
+
+def test_the_cycle_ends_at_a_clear_position_beyond_the_part(rear):
+    """The clear leg: X alone, away from the blisk, to where no A, C, Y or Z move can reach the part."""
+    from edm_planner.machine.kinematics import axis_poses
+
+    g, field, electrode, plan, builder, cycle = rear
+    zone, leg = cycle.clear_zone, cycle.legs[-1]
+    names = list(plan.axis_names)
+    ix, ic = names.index("X"), names.index("C")
+    assert leg.phase == "clear" and len(leg.samples) == 2
+    assert np.array_equal(leg.samples[0], cycle.legs[-2].samples[-1])            # from the home point
+    step = leg.samples[1] - leg.samples[0]
+    assert np.count_nonzero(step) == 1 and np.sign(step[ix]) == zone.side       # X alone, outwards
+    assert leg.samples[1][ix] == zone.clear_x and np.all(leg.clearance_lower_bound >= cycle.margin)
+    # the envelope holds the model's hub, shroud and blades (and the cycle's 5 mm beyond them)
+    lo, hi = zone.envelope
+    b = g.blisk
+    assert lo == pytest.approx(min(b.hub.x_range[0], b.shroud.x_range[0], b.axial_range[0]) - 5.0)
+    assert hi == pytest.approx(max(b.hub.x_range[1], b.shroud.x_range[1], b.axial_range[1]) + 5.0)
+    # independently: at the clear position, whatever C, A, Y, Z do, every vertex lies beyond the envelope by
+    # at least the stated separation (>= the 2 mm clearance)
+    rng = np.random.default_rng(7)
+    q = np.repeat(leg.samples[1][None], 200, axis=0)
+    q[:, ic] = rng.uniform(-np.pi, np.pi, 200)
+    for name, span in (("A", np.pi), ("Y", 50.0), ("Z", 50.0)):
+        q[:, names.index(name)] += rng.uniform(-span, span, 200)
+    poses = axis_poses(plan.final_pose, plan.axis_names, q)
+    x = np.einsum("nij,vj->nvi", poses[:, :3, :3], electrode.mesh.vertices)[..., 0] + poses[:, None, 0, 3]
+    gap = (x - hi).min() if zone.side > 0 else (lo - x).max() * -1
+    assert gap >= zone.separation(zone.clear_x) >= 2.0 - 1e-9
+    # and every blade is further than the blade gap from the home point on (the electrode is past them)
+    assert zone.blade_gap > 0
 
 
 def test_the_sizing_bisection_finds_the_smallest_certified_value():

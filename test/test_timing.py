@@ -326,26 +326,33 @@ def test_real_plan_timed_on_the_default_machine(real_plan, machine):
 
 
 # -- NC program and CSV ----------------------------------------------------------------------------
+def _nc_round_trip(j, plan, machine, axes):
+    """The plan's NC program (default dialect): checked against the timed points, read back."""
+    from edm_planner.machine.post import ProgramRun, check_program, parse_nc, write_program
+
+    text, stats = write_program([ProgramRun(j, plan.electrode_id, plan.plan_id)], plan.plan_id, plan.geometry_id,
+                                "plan", machine)
+    check_program(text, "iso_fanuc", [j])     # every point a timed point (0.1 um, 1e-4 deg), left-out ones <= 1 um
+    back = parse_nc(text)
+    assert back["axis_names"] == axes and back["plan_id"] == plan.plan_id
+    assert stats.points == len(j.times) - 1 and stats.blocks < stats.points
+    np.testing.assert_allclose(back["positions"][[0, -1]], j.positions[[0, -1]], atol=0.5e-4 + 1e-12)
+    assert back["times"][-1] == pytest.approx(j.duration, rel=1e-5)
+    return text, back
+
+
 @pytest.mark.slow
 def test_nc_export_parses_back_to_the_same_timed_path(real_plan, machine):
-    from edm_planner.machine.nc import parse_nc, nc_program, trajectory_csv
+    from edm_planner.machine.nc import trajectory_csv
 
     plan = real_plan
     j = plan_trajectory(plan.samples, plan.axis_names, machine)
-    text = nc_program(j, plan.plan_id, plan.geometry_id, plan.channel, plan.electrode_id)
+    text, back = _nc_round_trip(j, plan, machine, ("X", "Y", "Z", "A", "C"))
     lines = text.splitlines()
-    assert lines[0] == "%" and lines[-1] == "%" and "G21 G90 G93" in lines
-    assert f"(EDM_PLANNER PLAN {plan.plan_id})" in lines and f"(GEOMETRY {plan.geometry_id})" in lines
-    assert "(UNITS X=MM Y=MM Z=MM A=DEG C=DEG F=INVERSE TIME 1/MIN)" in lines
-    assert sum(line.split()[1] == "G01" for line in lines if line.startswith("N")) == len(j.times) - 1
-    back = parse_nc(text)
-    assert back["plan_id"] == plan.plan_id and back["geometry_id"] == plan.geometry_id
-    assert back["axis_names"] == ("X", "Y", "Z", "A", "C")
-    # the same path to the written precision (0.1 um, 1e-5 deg), the same timing to F's 7 digits
-    err = np.abs(back["positions"] - j.positions)
-    assert np.all(err[:, :3] <= 0.5e-4 + 1e-12) and np.all(err[:, 3:] <= np.radians(0.5e-5) + 1e-15)
-    np.testing.assert_allclose(back["positions"][-1], [0, 0, 0, 3 * 2 * np.pi / 60, 0], atol=1e-7)
-    np.testing.assert_allclose(back["times"], j.times, rtol=1e-6, atol=1e-6)
+    assert lines[0] == "%" and lines[-1] == "%" and "N10 G17 G40 G49 G80 G21 G90" in lines
+    assert f"(EDM_PLANNER PLAN {plan.plan_id.upper()})" in lines and "(A JOINT EDM_A DEG)" in lines
+    assert back["geometry_id"] == plan.geometry_id.lower()
+    np.testing.assert_allclose(back["positions"][-1], [0, 0, 0, 3 * 2 * np.pi / 60, 0], atol=1e-6)
     # CSV: header with units, one row per point
     csv = trajectory_csv(j).splitlines()
     assert csv[0].startswith("t_s,X_mm,X_vel_mm_s,X_acc_mm_s2,Y_mm") and "A_rad,A_vel_rad_s,A_acc_rad_s2" in csv[0]
@@ -355,20 +362,29 @@ def test_nc_export_parses_back_to_the_same_timed_path(real_plan, machine):
     np.testing.assert_array_equal(table[:, 2::3], j.velocities)
 
 
-def test_nc_parser_rejects_what_it_does_not_write():
-    from edm_planner.machine.nc import parse_nc
+def test_nc_reader_rejects_what_the_writer_does_not_write():
+    from edm_planner.machine.post import read_program
 
-    for text, words in (("G21 G90 G93\nN10 G00 X1 Y2\nN20 G01 X2 Y2\n", "needs G93 and a positive F"),
-                        ("G21 G90\nN10 G00 X1 Y2\nN20 G01 X2 Y2 F10\n", "needs G93"),
-                        ("G21 G90 G93\nN10 G00 X1 Y2\nN20 G02 X2 Y2 F10\n", "unsupported codes"),
-                        ("G21 G90 G93\nN10 G00 X1 Y2\nN20 G01 X2 Z2 F10\n", "differ from"),
-                        ("(EDM_PLANNER PLAN x)\n%\n", "no motion blocks")):
+    head = "%\nO1000 (X)\nN10 G17 G40 G49 G80 G21 G90\n"
+    tool = "N20 G94\nN30 T1 M06\nN40 G00 X1.0\nN50 G00 Y2.0 A0.0\n"
+    for body, words in (("N20 G93 G01 X1.0 Y2.0 A1.0 F10.\n", "motion before the first tool change"),
+                        (tool + "N60 G93 G01 X2.0 Y2.0 A1.0\n", "without a positive F"),
+                        (tool + "N60 G93 G01 X2.0 Z2.0 A1.0 F1.\n", "differ from"),
+                        (tool + "N60 C180\n", "axis words without motion"),
+                        ("N20 G93\nN30 T1 M06\n", "tool change in G93"),
+                        (tool + "N60 M98 P1234\n", "lacks"),
+                        ("G01 X1.0\n", "block without N number")):
         with pytest.raises(EdmError) as err:
-            parse_nc(text)
-        assert err.value.code == ErrorCode.FILE_ERROR and words in err.value.message
-    back = parse_nc("G21 G90 G93\nN10 G00 X1 A90\nN20 G01 X2 A45 F120\nN30 G01 X3 A0 F60\nM30\n")
-    np.testing.assert_allclose(back["positions"], [[1, np.pi / 2], [2, np.pi / 4], [3, 0]])
-    np.testing.assert_allclose(back["times"], [0, 0.5, 1.5])
+            read_program(head + body + "N90 M30\n%\n", "iso_fanuc")
+        assert err.value.code == ErrorCode.FILE_ERROR and words in err.value.message, (body, err.value.message)
+    with pytest.raises(EdmError) as err:
+        read_program("%\nN10 G01 X1.0\n%\n", "iso_fanuc")
+    assert err.value.code == ErrorCode.FILE_ERROR
+    back = read_program(head + tool + "N60 G93 G01 X2.0 Y2.0 A45.0 F120.\nN70 G01 X3.0 Y2.0 A0. F60.\nN80 M30\n%\n",
+                        "iso_fanuc")
+    (tr,) = back["trajectories"]
+    np.testing.assert_allclose(tr["positions"], [[1, 2, 0], [2, 2, np.pi / 4], [3, 2, 0]])
+    np.testing.assert_allclose(tr["times"], [0, 0.5, 1.5])
 
 
 @pytest.mark.slow
@@ -527,7 +543,6 @@ def test_real_four_axis_plan_timed(plan4, machine4):
 @pytest.mark.slow
 def test_real_six_axis_plan_timed_in_the_machine_joint_order(plan6, machine6):
     from edm_planner.machine.kinematics import axis_poses
-    from edm_planner.machine.nc import nc_program, parse_nc
 
     plan, m = plan6, machine6
     j = plan_trajectory(plan.samples, plan.axis_names, m)
@@ -563,25 +578,13 @@ def test_real_six_axis_plan_timed_in_the_machine_joint_order(plan6, machine6):
         plan_trajectory(plan.samples, plan.axis_names, replace(m, c_pivot=(0.0, 0.0, 5.0)), final_pose=plan.final_pose)
     assert err.value.code == ErrorCode.INVALID_REQUEST and "C pivot with a B axis" in err.value.message
     # NC program: X Y Z A C B words, read back to the same path
-    text = nc_program(j, plan.plan_id, plan.geometry_id, plan.channel, plan.electrode_id)
-    assert "(UNITS X=MM Y=MM Z=MM A=DEG C=DEG B=DEG F=INVERSE TIME 1/MIN)" in text
-    assert "(JOINTS X=edm_x Y=edm_y Z=edm_z A=edm_a C=edm_c B=edm_b)" in text
-    back = parse_nc(text)
-    assert back["axis_names"] == AXES6
-    err = np.abs(back["positions"] - j.positions)
-    assert np.all(err[:, :3] <= 0.5e-4 + 1e-12) and np.all(err[:, 3:] <= np.radians(0.5e-5) + 1e-15)
-    np.testing.assert_allclose(back["times"], j.times, rtol=1e-6, atol=1e-6)
+    text, back = _nc_round_trip(j, plan, m, AXES6)
+    assert "(B JOINT EDM_B DEG)" in text
 
 
 @pytest.mark.slow
 def test_four_axis_nc_has_no_a_word(plan4, machine4):
-    from edm_planner.machine.nc import nc_program, parse_nc
-
     j = plan_trajectory(plan4.samples, plan4.axis_names, machine4)
-    text = nc_program(j, plan4.plan_id, plan4.geometry_id, plan4.channel, plan4.electrode_id)
+    text, back = _nc_round_trip(j, plan4, machine4, AXES4)
     blocks = [line for line in text.splitlines() if line.startswith("N")]
-    assert all(" A" not in line for line in blocks) and "(UNITS X=MM Y=MM Z=MM C=DEG" in text
-    back = parse_nc(text)
-    assert back["axis_names"] == AXES4
-    assert np.abs(back["positions"][:, :3] - j.positions[:, :3]).max() <= 0.5e-4 + 1e-12
-    np.testing.assert_allclose(back["times"], j.times, rtol=1e-6, atol=1e-6)
+    assert all(" A" not in line for line in blocks) and "(C JOINT EDM_C DEG)" in text and "G52" not in text

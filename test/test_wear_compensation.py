@@ -92,9 +92,12 @@ def test_the_blisk_program_runs_each_channel_moved_by_its_depth_and_changes_the_
     # between channels of one electrode the index also moves X, Y, Z by the change of the compensation
     index = [leg for leg in runs[0].legs if leg.phase == "index"]
     assert [leg.label.split(", ")[-1] for leg in index] == ["wear compensation +0.0100 mm"] * 2
-    for leg in index:
-        step = np.abs(np.diff(leg.samples, axis=0))
-        assert step[:, ia].max() <= 0.0005 + 1e-12 and np.linalg.norm(step[:, :3], axis=1).max() <= 0.05
+    for leg in index:                  # one straight leg at the clear position, certified by its separation
+        step = leg.samples[1] - leg.samples[0]
+        assert len(leg.samples) == 2 and abs(np.linalg.norm(step[:3]) - 0.01) < 1e-12
+        assert np.all(leg.clearance_lower_bound >= plan.cycle.margin)
+        assert leg.clearance_lower_bound[0] == pytest.approx(plan.cycle.clear_zone.separation(
+            min(leg.samples[:, 0], key=lambda x: plan.cycle.clear_zone.separation(x))), abs=1e-12)
     # a roughing twin (its legs erode in the rough regime) is named as one, not by the id it shares
     rough = copy.deepcopy(plan)
     rough.plan_id = "twin"
@@ -103,7 +106,8 @@ def test_the_blisk_program_runs_each_channel_moved_by_its_depth_and_changes_the_
     assert [r.label for r in runs] == [f"rough-{rough.electrode_id}", f"rough-{rough.electrode_id} (replacement 1)"]
     # the stored plan is the fresh electrode's: depth 0, the certified samples bit for bit
     (single,) = program_runs([(plan.plan_id, 0)], {plan.plan_id: PlanCycle.of_plan(plan)})
-    assert all(np.array_equal(a.samples, b.samples) for a, b in zip(single.legs, plan.cycle.legs))
+    assert single.legs[0].phase == "clear"                        # the clear leg reversed, then the cycle
+    assert all(np.array_equal(a.samples, b.samples) for a, b in zip(single.legs[1:], plan.cycle.legs))
     with pytest.raises(ValueError, match="finite and >= 0"):
         plan.cycle.with_compensation_depth(-0.01, plan.final_pose)
 

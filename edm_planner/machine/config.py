@@ -83,6 +83,7 @@ class MachineConfig:
     a_zero: float = 0.0                  # rad
     c_pivot: tuple = (0.0, 0.0, 0.0)     # mm, electrode frame
     process: ProcessModel = DEFAULT_PROCESS   # the EDM process (regimes, wear); section ``process:``
+    nc: dict = None                      # section ``nc:``: ``dialect`` (name or path), ``structure``
 
     @property
     def axis_names(self):
@@ -181,10 +182,10 @@ def parse_machine(doc, source="<machine>"):
     """A parsed machine YAML document -> MachineConfig (INVALID_REQUEST naming the key on any fault)."""
     if not isinstance(doc, dict):
         raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: expected a mapping with 'machine' and 'axes'")
-    unknown = sorted(set(doc) - {"machine", "axes", "process"})
+    unknown = sorted(set(doc) - {"machine", "axes", "process", "nc"})
     if unknown:
         raise EdmError(ErrorCode.INVALID_REQUEST,
-                       f"{source}: unknown top-level keys {unknown} (allowed: machine, axes, process)")
+                       f"{source}: unknown top-level keys {unknown} (allowed: machine, axes, process, nc)")
     machine = doc.get("machine") or {}
     if not isinstance(machine, dict):
         raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: machine: expected a mapping")
@@ -217,7 +218,28 @@ def parse_machine(doc, source="<machine>"):
         raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: axes: joint names must be unique, got {joints}")
     return MachineConfig(name=str(machine.get("name", "")), axes=parsed,
                          a_zero=_number(machine.get("a_zero_rad", 0.0), f"{source}: machine.a_zero_rad"),
-                         c_pivot=pivot, process=parse_process(doc.get("process"), source))
+                         c_pivot=pivot, process=parse_process(doc.get("process"), source),
+                         nc=_parse_nc(doc.get("nc"), source))
+
+
+def _parse_nc(section, source):
+    """The ``nc:`` section: the control's dialect and the program structure (the dialect loaded to check it)."""
+    from .dialect import DEFAULT_DIALECT, DIALECT_DIR, STRUCTURES, load_dialect
+
+    section = {} if section is None else section
+    if not isinstance(section, dict) or set(section) - {"dialect", "structure"}:
+        raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: nc: expected a mapping with dialect and structure, "
+                                                  f"got {section!r}")
+    dialect = str(section.get("dialect", DEFAULT_DIALECT))
+    if dialect.endswith((".yaml", ".yml")) and not Path(dialect).is_absolute():
+        here = Path(source).parent if source and not source.startswith("<") else DIALECT_DIR
+        dialect = str((here / dialect).resolve())         # relative to the machine file
+    load_dialect(dialect)
+    structure = str(section.get("structure", "subprograms"))
+    if structure not in STRUCTURES:
+        raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: nc.structure must be one of {STRUCTURES}, got "
+                                                  f"{structure!r}")
+    return {"dialect": dialect, "structure": structure}
 
 
 #: largest machine YAML read [bytes] (a machine file is a few kB)

@@ -26,6 +26,18 @@ least that machining margin. Approach and retract move along X between the feed'
 
 Legs are rest to rest (the axes stop where the motion turns back), so the
 axis bridge times each leg on its own and sends the whole cycle in order.
+
+After the retract a **clear** leg moves X alone on, away from the blisk, to the
+*clear position*: there the electrode's bounding sphere about its origin (the C
+axis' pivot: a C turn does not move it) lies wholly beyond a plane normal to X
+outside the part's axial envelope (the model's hub, shroud and blades extended by
+``envelope_margin``), by ``clearance``. A turns about X and Y, Z move in planes
+normal to it, so at that X no move of A, C, Y or Z can bring the electrode to the
+part: channel indexes and tool changes happen there (:mod:`.program`), with that
+separation as their certificate (:class:`ClearZone`). The clear leg itself is
+certified against the channel's walls (the certifier) up to where the sphere is
+separated, by the separation beyond, and against every blade by the electrode's
+axial distance from the blades' range where it is outside it.
 """
 
 import logging
@@ -40,7 +52,7 @@ from ..planning.certify import PathCertifier
 
 _log = logging.getLogger(__name__)
 
-PHASES = ("approach", "feed", "process", "return", "retract")
+PHASES = ("approach", "feed", "process", "return", "retract", "clear")
 
 
 @dataclass(frozen=True)
@@ -71,9 +83,12 @@ class CycleOptions:
     radial_resolution: float = 0.01
     sample_spacing: float = 0.05
     wall_steps: int = 4
+    envelope_margin: float = 5.0
+    clearance: float = 2.0
 
     def __post_init__(self):
-        for name in ("tolerance", "approach_distance", "radial_resolution", "sample_spacing"):
+        for name in ("tolerance", "approach_distance", "radial_resolution", "sample_spacing", "envelope_margin",
+                     "clearance"):
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
                 raise ValueError(f"{name} must be a positive number [mm], got {v!r}")
@@ -153,6 +168,50 @@ class ProcessReach:
                    compensation_depths=tuple(float(v) for v in r.get("compensation_depths_mm", ())))
 
 
+@dataclass(frozen=True)
+class ClearZone:
+    """Where the electrode is clear of the whole part, and by how much (mm; W: X is the blisk's axis).
+
+    The electrode's origin lies on its C axis, so its bounding sphere about the origin (radius
+    ``sphere_radius``, over the mesh's vertices plus its chord tolerance) does not move with C; A turns about
+    X. The origin's W x is ``X + origin_x`` for axis value X (Huang eq. 2: ``R_x(A) T(X, Y, Z) T_final``), so
+    the sphere's distance from the envelope's plane on the electrode's ``side`` is a function of X alone
+    (:meth:`separation`), whatever A, C, Y and Z do: a lower bound of the distance to anything of the part
+    inside the envelope ``envelope`` (the model's hub, shroud and blades extended axially by the cycle's
+    ``envelope_margin``). ``clear_x`` is the clear position's X, where that separation is at least the
+    cycle's ``clearance``. ``blade_gap``: the electrode's axial distance from the blades' range at the
+    home point (the retract's end), a lower bound of its distance to every blade of the blisk along the
+    clear leg (NaN where the electrode overlaps the blades' range there).
+    """
+
+    side: float
+    envelope: tuple
+    sphere_radius: float
+    origin_x: float
+    clear_x: float
+    blade_gap: float = float("nan")
+
+    def separation(self, x):
+        """Lower bound of the electrode's distance from the part at axis value X = x [mm] (any A, C, Y, Z)."""
+        edge = self.envelope[1] if self.side > 0 else -self.envelope[0]
+        return self.side * (np.asarray(x, dtype=np.float64) + self.origin_x) - self.sphere_radius - edge
+
+    def to_dict(self):
+        return {"side": self.side, "envelope_x_mm": list(self.envelope), "sphere_radius_mm": self.sphere_radius,
+                "origin_x_mm": self.origin_x, "clear_x_mm": self.clear_x,
+                # unrounded: the certificate digest covers these values bit for bit
+                "blade_gap_mm": float(self.blade_gap) if np.isfinite(self.blade_gap) else None,
+                "separation_at_clear_x_mm": _f(float(self.separation(self.clear_x)))}
+
+    @classmethod
+    def from_dict(cls, r):
+        if not r:
+            return None
+        gap = r.get("blade_gap_mm")
+        return cls(float(r["side"]), tuple(float(v) for v in r["envelope_x_mm"]), float(r["sphere_radius_mm"]),
+                   float(r["origin_x_mm"]), float(r["clear_x_mm"]), float("nan") if gap is None else float(gap))
+
+
 @dataclass
 class MachiningCycle:
     """The whole cycle of one electrode: legs in order, each certified.
@@ -167,6 +226,9 @@ class MachiningCycle:
     certified : bool
         Every leg certified; False with ``message`` saying where and why.
     message : str
+    clear_zone : ClearZone or None
+        Where the last leg (phase ``clear``) ends: index moves and tool changes happen there. None for a cycle
+        built or stored before clear legs existed (a program refuses it: plan again).
     """
 
     axis_names: tuple
@@ -175,6 +237,7 @@ class MachiningCycle:
     margin: float
     certified: bool = True
     message: str = ""
+    clear_zone: ClearZone = None
 
     @property
     def samples(self):
@@ -230,6 +293,7 @@ class MachiningCycle:
     def to_dict(self):
         return {"axis_names": list(self.axis_names), "margin_mm": self.margin, "certified": self.certified,
                 "message": self.message, "reach": self.reach.to_dict(),
+                "clear_zone": self.clear_zone.to_dict() if self.clear_zone is not None else None,
                 "legs": [{"phase": p, "label": lab, "first": a, "last": b,
                           "clearance_lower_bound_mm": {s: _f(v) for s, v in zip(SURFACES, leg.clearance_lower_bound)},
                           "regime": leg.regime, "removed_volume_mm3": _f(leg.removed_volume)}
@@ -348,6 +412,56 @@ class CycleBuilder:
         for i, name in enumerate(("X", "Y", "Z")):
             d[self.axis_names.index(name)] = ez[i]
         return d
+
+    def clear_leg(self, q_home, q_final):
+        """The straight X move from the home point out to the clear position; (Leg or None, ClearZone, failure).
+
+        Certified by the certifier (channel walls) from the home point to where the bounding sphere is
+        separated from the envelope by the margin, by that separation beyond it (it only grows), and against
+        every blade by the electrode's axial distance from their range where that is positive.
+        """
+        blisk = getattr(self.certifier.field, "blisk", None)
+        if blisk is None:
+            return None, None, "no blisk model to take the part's envelope from: no clear position"
+        ix = self.axis_names.index("X")
+        side = float(np.sign(q_home[ix] - q_final[ix]) or 1.0)
+        verts = np.asarray(self.electrode.mesh.vertices, dtype=np.float64)
+        radius = float(np.linalg.norm(verts, axis=1).max()) + float(self.design.chord_tolerance)
+        blade = blisk.axial_range
+        lo = min(blisk.hub.x_range[0], blisk.shroud.x_range[0], blade[0]) - self.options.envelope_margin
+        hi = max(blisk.hub.x_range[1], blisk.shroud.x_range[1], blade[1]) + self.options.envelope_margin
+        origin_x = float(self.electrode.final_pose[0, 3])
+        probe = ClearZone(side, (float(lo), float(hi)), radius, origin_x, 0.0)
+        # X where the separation is s: side * (X + origin_x) - radius - edge = s
+        x_at = lambda sep: float(side * (sep + radius + (hi if side > 0 else -lo)) - origin_x)  # noqa: E731
+        x_home = float(q_home[ix])
+        x_clear = x_home if probe.separation(x_home) >= self.options.clearance else x_at(self.options.clearance)
+        pose = axis_poses(self.electrode.final_pose, self.axis_names, q_home[None])[0]
+        xs = verts @ pose[:3, 0] + pose[0, 3]
+        blade_gap = float(xs.min() - blade[1] if side > 0 else blade[0] - xs.max())
+        zone = ClearZone(side, (float(lo), float(hi)), radius, origin_x, x_clear,
+                         blade_gap if blade_gap > 0 else float("nan"))
+        if x_clear == x_home:
+            return None, zone, ""
+        q_clear = q_home.copy()
+        q_clear[ix] = x_clear
+        # the certifier over the whole move where it can (the tightest bound), else up to where the
+        # sphere's separation reaches the margin and the separation beyond (it only grows)
+        _, cert = self.leg("clear", "clear", q_home, q_clear)
+        bound, failure = cert.lower_bound.copy(), ""
+        if not cert.certified and zone.separation(x_home) >= self.margin:
+            bound, failure = np.full(4, float(zone.separation(x_home))), ""
+        elif not cert.certified:
+            x_sep = x_at(self.margin)
+            q_sep = q_home.copy()
+            q_sep[ix] = x_sep
+            _, cert = self.leg("clear", "clear", q_home, q_sep)
+            if not cert.certified:
+                failure = (f"the move out to the clear position is not certified near the blisk "
+                           f"({cert.failure_surface})")
+            bound = np.minimum(cert.lower_bound, zone.separation(x_sep))
+        label = f"clear: X out to {x_clear:.3f} mm, {zone.separation(x_clear):.3f} mm beyond the part's envelope"
+        return Leg("clear", label, np.vstack([q_home, q_clear]), bound), zone, failure
 
     def approach_leg(self, feed_samples):
         """The approach to the feed's start from further out; (Leg, Certificate).
@@ -476,11 +590,14 @@ class CycleBuilder:
         back = Leg("return", "return (the feed reversed)", feed_samples[::-1].copy(), feed_clearance.copy())
         retract, _ = self.leg("retract", "retract (the approach reversed)", q_start, q_home)
         retract.clearance_lower_bound = approach.clearance_lower_bound.copy()
-        legs = [approach, feed] + process + [back, retract]
-        cycle = MachiningCycle(self.axis_names, legs, reach, self.margin)
+        clear, zone, clear_failure = self.clear_leg(q_home, q_final)
+        legs = [approach, feed] + process + [back, retract] + ([clear] if clear is not None else [])
+        cycle = MachiningCycle(self.axis_names, legs, reach, self.margin, clear_zone=zone)
         problems = []
         if failure:
             problems.append(failure)
+        if clear_failure:
+            problems.append(clear_failure)
         if not c1.certified:
             problems.append(f"the approach is not certified ({c1.failure_surface})")
         required = self.margin if required_feed_margin is None else float(required_feed_margin)

@@ -716,10 +716,11 @@ def retraces(a, earlier, tol=1e-9):
 
 def proof_legs(cycle):
     """The cycle's legs the removal proof visits: a leg that retraces earlier ones (:func:`retraces`) is left
-    out, since axis values determine the pose: its electrode positions, and what they erode, are the same."""
+    out, since axis values determine the pose: its electrode positions, and what they erode, are the same; so is
+    the clear leg, which moves from the home point away from the blisk (it erodes nothing)."""
     kept = []
     for leg in cycle.legs:
-        if not retraces(np.asarray(leg.samples, dtype=np.float64), [k.samples for k in kept]):
+        if leg.phase != "clear" and not retraces(np.asarray(leg.samples, dtype=np.float64), [k.samples for k in kept]):
             kept.append(leg)
     return kept
 

@@ -10,22 +10,22 @@ store, :meth:`~edm_planner.planning.store.PlanStore.put_sequence`):
     with the next (:func:`blisk_program_steps`): one tool change per electrode.
 
 Each step runs the plan's whole machining cycle (approach, feed, process,
-return, retract; :mod:`.cycle`) moved from the plan's channel to the step's
-(A += (k - plan channel) * pitch; the blisk is periodic). With wear compensation
-(the plan's ``reach.compensation_depths``) the j-th channel of an electrode's life
-runs the cycle moved ``compensation_depths[j]`` along the electrode's front (the
-wear it has taken by then), and after the last one a new electrode of the same
-plan takes over (a tool change). Between two steps of
-the same electrode an **index** leg turns A by the channel difference (and
-moves X, Y, Z by the change of the wear compensation, :func:`index_leg`) at the
-cycle's home point (the approach start, outside the blades' axial range by the
-exit distance plus the approach distance). There the electrode lies wholly
-beyond the blades' axial range and hub and shroud are surfaces of revolution,
-so turning the blisk about X cannot bring any final surface closer: the index
-needs no certification beyond the home point's. Between two electrodes a
-**tool change**: no motion, the trajectory ends at the old electrode's home
-point and the next one starts at the new electrode's home point (the machine
-moves there from its tool changer, as at the start of any program).
+return, retract, clear; :mod:`.cycle`) moved from the plan's channel to the
+step's (A += (k - plan channel) * pitch; the blisk is periodic), starting from
+the clear position (the cycle's clear leg reversed) and ending there. With wear
+compensation (the plan's ``reach.compensation_depths``) the j-th channel of an
+electrode's life runs the cycle moved ``compensation_depths[j]`` along the
+electrode's front (the wear it has taken by then), and after the last one a new
+electrode of the same plan takes over (a tool change). Between two steps of the
+same electrode an **index** leg turns A by the channel difference (and moves X,
+Y, Z by the change of the wear compensation, :func:`index_leg`) at the clear
+position, certified by the cycle's :class:`~.cycle.ClearZone`: the electrode's
+bounding sphere stays beyond the part's axial envelope whatever A does, by at
+least the separation at the leg's ends (X moves linearly along it). Between two
+electrodes a **tool change**: each electrode's trajectory ends at its clear
+position and the next one starts at its own; the NC program switches to G94,
+changes the tool there and moves to the next clear position X first
+(:mod:`edm_planner.machine.post`).
 
 A four-axis machine (X, Y, Z, C) has no A: its channel is indexed outside the
 program, so a step in another channel than its plan's is refused.
@@ -33,16 +33,12 @@ program, so a step in another channel than its plan's is refused.
 
 import hashlib
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..errors import EdmError, ErrorCode
 
-#: largest A step between samples of an index leg [rad] (0.05 mm at 100 mm from the axis)
-INDEX_STEP = 0.0005
-#: largest X, Y, Z step between samples of an index leg that changes the wear compensation [mm]
-COMPENSATION_STEP = 0.05
 #: phase names of the program besides the cycle's (edm_planner.machining.cycle.PHASES)
 INDEX, TOOL_CHANGE = "index", "tool_change"
 
@@ -169,6 +165,9 @@ class ProgramLeg:
         Discharge regime of a cutting leg ('' : the generator is off); see :class:`~.cycle.Leg`.
     removed_volume : float
         [mm^3], NaN where not computed.
+    clearance_lower_bound : (4,) float
+        Certified lower bound of the per-surface clearance along the leg [mm] (index: the clear zone's
+        separation from the whole part, the same for every surface).
     """
 
     phase: str
@@ -178,6 +177,7 @@ class ProgramLeg:
     plan: PlanCycle
     regime: str = ""
     removed_volume: float = float("nan")
+    clearance_lower_bound: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
 
 
 @dataclass
@@ -209,14 +209,15 @@ class ElectrodeRun:
         return f"{name} (replacement {self.replacement})" if self.replacement else name
 
 
-def index_leg(q_from, q_to, axis_names, plan, channel, step=INDEX_STEP, compensation=0.0):
-    """The A turn at the home point from one channel's to another's (a straight leg in A only).
+def index_leg(q_from, q_to, axis_names, plan, channel, compensation=0.0):
+    """The A turn at the clear position from one channel's to another's: one straight leg in axis space.
 
-    With wear compensation X, Y, Z also move, by the change of the compensation (``compensation`` [mm],
-    the depth added along the front): the offset is the same in X, Y, Z at any A
-    (:func:`~edm_planner.machine.kinematics.offset_axes`), so every sample is the home point turned by
-    some A and moved by a depth between the two, which the worn electrode has taken: it lies inside the
-    unworn electrode at the turned home point, which no final surface comes near.
+    It moves A only, and with wear compensation X, Y, Z by the change of the compensation
+    (``compensation`` [mm], the depth added along the front; :func:`~edm_planner.machine.kinematics.offset_axes`
+    moves X, Y, Z by the same amount at any A). Certified by the plan's clear zone
+    (:class:`~edm_planner.machining.cycle.ClearZone`): the separation from the part's envelope depends on X
+    alone, which moves linearly, so its smaller end value bounds the whole leg; INFEASIBLE where that is
+    below the cycle's machining margin, INVALID_REQUEST for a cycle without a clear zone.
     """
     q_from, q_to = np.asarray(q_from, dtype=np.float64), np.asarray(q_to, dtype=np.float64)
     diff = np.flatnonzero(q_from != q_to)
@@ -227,17 +228,23 @@ def index_leg(q_from, q_to, axis_names, plan, channel, step=INDEX_STEP, compensa
     if len(diff) and not set(diff) <= allowed:
         raise EdmError(ErrorCode.INTERNAL, f"an index move may turn A only (and move X, Y, Z by a change of the "
                                            f"wear compensation), it would move axes {[axis_names[i] for i in diff]}")
-    n = max(2, int(np.ceil(abs(q_to[ia] - q_from[ia]) / step)) + 1,
-            int(np.ceil(np.linalg.norm(q_to[xyz] - q_from[xyz]) / COMPENSATION_STEP)) + 1)
-    samples = np.repeat(q_from[None], n, axis=0)
-    samples[:, ia] = np.linspace(q_from[ia], q_to[ia], n)
-    if compensation:
-        samples[:, xyz] = np.linspace(q_from[xyz], q_to[xyz], n)
-    samples[-1] = q_to
-    label = f"index A {q_to[ia] - q_from[ia]:+.5f} rad to channel {channel}"
+    zone = plan.cycle.clear_zone if plan.cycle is not None else None
+    if zone is None:
+        raise EdmError(ErrorCode.INVALID_REQUEST,
+                       f"plan {plan.plan_id} (electrode {plan.electrode_id or '-'}): its cycle has no clear position "
+                       f"(planned before clear legs existed, or received without it): an index move there cannot "
+                       f"be certified; plan the set again")
+    ix = names.index("X")
+    separation = float(min(zone.separation(q_from[ix]), zone.separation(q_to[ix])))
+    if not separation >= plan.cycle.margin:
+        raise EdmError(ErrorCode.INFEASIBLE,
+                       f"plan {plan.plan_id}: the index to channel {channel} would pass {separation:.3f} mm from the "
+                       f"part's envelope, less than the machining margin {plan.cycle.margin:.3f} mm")
+    label = f"index A {q_to[ia] - q_from[ia]:+.5f} rad to channel {channel} at the clear position"
     if compensation:
         label += f", wear compensation {compensation:+.4f} mm"
-    return ProgramLeg(INDEX, label, samples, channel, plan)
+    return ProgramLeg(INDEX, label, np.vstack([q_from, q_to]), channel, plan,
+                      clearance_lower_bound=np.full(4, separation))
 
 
 def cycle_legs(plan, channel, pitch, use=0):
@@ -257,10 +264,15 @@ def cycle_legs(plan, channel, pitch, use=0):
                        f"the machining cycle of plan {plan.plan_id} (electrode {plan.electrode_id or '-'}) is not "
                        f"certified: {plan.cycle.message or 'no reason recorded'}; it is not sent nor written")
     depths = plan.cycle.reach.compensation_depths
-    legs = plan.cycle.with_compensation_depth(depths[use], plan.final_pose) if depths else plan.cycle.legs
+    legs = plan.cycle.with_compensation_depth(depths[use], plan.final_pose) if depths else list(plan.cycle.legs)
+    if legs and legs[-1].phase == "clear":         # from the clear position and back to it
+        out = legs[-1]
+        back = replace(out, label=f"clear: back in from X {out.samples[-1][list(plan.axis_names).index('X')]:.3f} "
+                                  f"mm (the clear leg reversed)", samples=out.samples[::-1].copy())
+        legs = [back] + legs
     return [ProgramLeg(leg.phase, leg.label,
                        shift_to_channel(leg.samples, plan.axis_names, plan.channel, channel, pitch), int(channel), plan,
-                       leg.regime, leg.removed_volume)
+                       leg.regime, leg.removed_volume, np.asarray(leg.clearance_lower_bound, dtype=np.float64).copy())
             for leg in legs]
 
 
@@ -340,7 +352,7 @@ def read_exported_cycle(export_dir, doc):
     import hashlib
     import pathlib
 
-    from .cycle import Leg, MachiningCycle, ProcessReach
+    from .cycle import ClearZone, Leg, MachiningCycle, ProcessReach
 
     section = doc.get("cycle")
     if not section:
@@ -378,4 +390,5 @@ def read_exported_cycle(export_dir, doc):
         raise EdmError(ErrorCode.FILE_ERROR, f"{path}: {len(body)} rows, plan.json's legs end elsewhere")
     reach = ProcessReach.from_dict(section.get("reach") or {})
     return MachiningCycle(names, legs, reach, float(section.get("margin_mm", np.nan)),
-                          bool(section.get("certified", False)), section.get("message", ""))
+                          bool(section.get("certified", False)), section.get("message", ""),
+                          ClearZone.from_dict(section.get("clear_zone")))

@@ -104,7 +104,8 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from ..errors import EdmError, ErrorCode
 from ..geometry.frames import is_rigid, pose_difference, rotation_about_x
 from ..machine.config import LINEAR, load_machine
-from ..machine.nc import nc_program, trajectory_csv
+from ..machine.nc import trajectory_csv
+from ..machine.post import ProgramRun, write_program
 from ..machine.trajectory import check_samples_travel, plan_trajectory, time_run
 from ..machining.program import PlanCycle, program_runs
 from ..paths import export_path, open_for_export
@@ -482,14 +483,17 @@ class AxisBridgeNode(Node):
         # the name is a plan or sequence id, which a message or the store chose: a plain name inside the
         # directory, never written through a symbolic link
         base = str(export_path(directory, name, "plan or sequence id", (".nc", ".csv")))
+        if hasattr(source, "steps"):                   # one electrode of a sequence
+            marks = arrays.phases or []
+            run = ProgramRun(arrays, marks[0].electrode_id if marks else "", marks[0].plan_id if marks else name)
+            kind = source.kind
+        else:
+            run, kind = ProgramRun(arrays, source.electrode_id, source.plan_id), "plan"
+        # the machine's dialect and structure; the final check refuses a program breaking them (INTERNAL)
+        text, _ = write_program([run], name, source.geometry_id, kind, self.machine)
         try:
             with open_for_export(base + ".nc") as f:
-                if hasattr(source, "steps"):           # one electrode of a sequence
-                    f.write(nc_program(arrays, name, source.geometry_id, arrays.phases[0].channel,
-                                       arrays.phases[0].electrode_id))
-                else:
-                    f.write(nc_program(arrays, source.plan_id, source.geometry_id, source.channel,
-                                       source.electrode_id))
+                f.write(text)
             with open_for_export(base + ".csv") as f:
                 f.write(trajectory_csv(arrays))
         except OSError as exc:

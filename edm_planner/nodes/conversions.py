@@ -145,7 +145,10 @@ def cycle_fields(cycle, set_id=""):
             "leg_regimes": [leg.regime for leg in cycle.legs],
             "leg_removed_volume": [float(leg.removed_volume) for leg in cycle.legs],
             "cycle_margin": float(cycle.margin), "cycle_certified": bool(cycle.certified),
-            "cycle_message": cycle.message, "set_id": set_id or ""}
+            "cycle_message": cycle.message, "set_id": set_id or "",
+            "clear_zone": [] if cycle.clear_zone is None else [
+                float(v) for v in (cycle.clear_zone.side, *cycle.clear_zone.envelope, cycle.clear_zone.sphere_radius,
+                                   cycle.clear_zone.origin_x, cycle.clear_zone.clear_x, cycle.clear_zone.blade_gap)]}
 
 
 def cycle_to_msg(msg, cycle, set_id=""):
@@ -157,7 +160,7 @@ def cycle_to_msg(msg, cycle, set_id=""):
 
 def msg_to_cycle(msg):
     """The MachiningCycle of a ChannelPlan message (legs rebuilt from cycle_path and leg_last), or None."""
-    from ..machining.cycle import Leg, MachiningCycle, ProcessReach
+    from ..machining.cycle import ClearZone, Leg, MachiningCycle, ProcessReach
 
     if not msg.leg_phases:
         return None
@@ -178,8 +181,12 @@ def msg_to_cycle(msg):
     for i, (phase, label, b) in enumerate(zip(msg.leg_phases, msg.leg_labels, last)):
         legs.append(Leg(phase, label, samples[first:b + 1].copy(), clear[i].copy(), regimes[i], float(volumes[i])))
         first = b
+    zone = list(msg.clear_zone)
+    if zone and len(zone) != 7:
+        raise EdmError(CoreErrorCode.INVALID_REQUEST, f"plan {msg.plan_id}: clear_zone has {len(zone)} values, not 7")
+    zone = ClearZone(zone[0], (zone[1], zone[2]), *zone[3:]) if zone else None
     return MachiningCycle(names, legs, ProcessReach(), float(msg.cycle_margin), bool(msg.cycle_certified),
-                          msg.cycle_message)
+                          msg.cycle_message, zone)
 
 
 _SURFACE_ORDER = ("suction", "pressure", "hub", "shroud")

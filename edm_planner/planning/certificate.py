@@ -5,7 +5,7 @@ SHA-256 of exactly what the certificate covers and the machine will move
 along: plan id, geometry id, channel, electrode id, method, axis names, the
 axis samples, the reference pose the axis values are measured from (4x4,
 channel 0) and, for a plan with a machining cycle, every leg's phase and
-samples, the machining margin and the cycle's verdict. Numbers enter as
+samples, the machining margin, the cycle's verdict and its clear zone. Numbers enter as
 little-endian float64 bytes, so one changed bit changes the digest.
 
 The digest is computed once, when the plan is turned into a record right
@@ -75,6 +75,10 @@ def certificate_digest(plan_id, geometry_id, channel, electrode_id, method, axis
                          "phases": [str(leg.phase) for leg in cycle.legs],
                          "leg_shapes": [list(s.shape) for s in legs],
                          "margin": repr(float(cycle.margin)), "certified": bool(cycle.certified)}
+        zone = getattr(cycle, "clear_zone", None)
+        if zone is not None:       # it certifies the index moves and tool changes (absent: older cycles)
+            head["cycle"]["clear_zone"] = [repr(float(v)) for v in (zone.side, *zone.envelope, zone.sphere_radius,
+                                                                    zone.origin_x, zone.clear_x, zone.blade_gap)]
     h = hashlib.sha256(json.dumps(head, sort_keys=True).encode())
     h.update(samples.tobytes())
     h.update(pose.tobytes())

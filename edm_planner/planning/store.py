@@ -600,6 +600,7 @@ def cycle_to_record(cycle):
     meta = {"cycle": {"axis_names": list(cycle.axis_names), "phases": [leg.phase for leg in legs],
                       "labels": [leg.label for leg in legs], "reach": cycle.reach.to_dict(),
                       "margin": float(cycle.margin), "certified": bool(cycle.certified), "message": cycle.message,
+                      "clear_zone": cycle.clear_zone.to_dict() if cycle.clear_zone is not None else None,
                       "regimes": [leg.regime for leg in legs],
                       "removed_volume_mm3": [None if not np.isfinite(leg.removed_volume) else float(leg.removed_volume)
                                              for leg in legs]}}
@@ -612,7 +613,7 @@ def cycle_to_record(cycle):
 
 def cycle_from_record(meta, arrays):
     """The MachiningCycle of a record's meta and arrays, legs bit for bit; None when it has none."""
-    from ..machining.cycle import Leg, MachiningCycle, ProcessReach
+    from ..machining.cycle import ClearZone, Leg, MachiningCycle, ProcessReach
 
     c = meta.get("cycle")
     if not c:
@@ -625,7 +626,7 @@ def cycle_from_record(meta, arrays):
                 float("nan") if volumes[i] is None else float(volumes[i]))
             for i, (phase, label, a, b) in enumerate(zip(c["phases"], c["labels"], bounds[:-1], bounds[1:]))]
     return MachiningCycle(tuple(c["axis_names"]), legs, ProcessReach.from_dict(c["reach"]), c["margin"],
-                          c["certified"], c["message"])
+                          c["certified"], c["message"], ClearZone.from_dict(c.get("clear_zone")))
 
 
 def stored_to_plan(stored, where="the plan store"):
