@@ -7,7 +7,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export AMENT_PREFIX_PATH := $(CURDIR)/$(VENV)
 export PYTHONDONTWRITEBYTECODE := 1
 
-.PHONY: setup demo test test-fast bench soak clean
+.PHONY: setup demo test test-fast bench soak docs clean
 
 setup:
 	@bash tools/setup.sh
@@ -32,9 +32,14 @@ bench: setup
 	$(PY) -m edm_planner.bench --out out/bench.json $(BENCH_ARGS)
 
 # 1000 CheckInterference and 100 PlanChannel calls from two clients against one set of node processes:
-# memory every 100 calls and the latency percentiles (docs/manual.md, Reliability).
+# memory every 100 calls and the latency percentiles (docs/reliability.md, Soak).
 soak: setup
 	$(PY) -m edm_planner.nodes.soak --out out/soak.json
+
+# The documentation site (docs/, mkdocs.yml) into out/site: open out/site/index.html. --strict: a broken
+# link or anchor, a page missing from the nav or a docstring griffe cannot parse fails the build.
+docs: setup
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict -d out/site
 
 clean:
 	rm -rf build out .pytest_cache

@@ -89,7 +89,10 @@ def test_the_cycle_is_timed_leg_by_leg_within_every_limit(rear, machine):
     g, plan = rear
     cycle = plan.cycle
     pc = PlanCycle.of_plan(plan)
-    arrays = time_run(program_runs([(plan.plan_id, 0)], {plan.plan_id: pc})[0].legs, machine)
+    legs = program_runs([(plan.plan_id, 0)], {plan.plan_id: pc})[0].legs
+    # a program runs the cycle from its clear position: the clear leg reversed, then the cycle's legs
+    assert legs[0].phase == "clear" and np.array_equal(legs[0].samples, cycle.legs[-1].samples[::-1])
+    arrays = time_run(legs[1:], machine)
     assert [m.phase for m in arrays.phases] == [leg.phase for leg in cycle.legs]
     # the points are the cycle's samples in order, the rest sample shared by two legs once; a two-sample
     # leg (a short straight move) has its chord's middle between them

@@ -282,3 +282,45 @@ def test_unknown_dialect_names_the_shipped_ones(tmp_path):
     with pytest.raises(EdmError) as e:
         load_dialect(str(p))
     assert e.value.code == ErrorCode.INVALID_REQUEST and "malformed YAML" in e.value.message
+
+
+def test_decimals_per_axis(program):
+    doc = _dialect_doc("iso_fanuc")
+    doc["decimals"]["C"] = 3
+    d = parse_dialect(doc, "c3")
+    text, _ = write_program(program["posts"][:1], "prog", "g", "plan", program["machine"], d, "flat")
+    c_words = re.findall(r" C(-?\d+\.\d*)", text)
+    x_words = re.findall(r" X(-?\d+\.\d*)", text)
+    assert c_words and all(len(w.split(".")[1]) == 3 for w in c_words)
+    assert all(len(w.split(".")[1]) == 4 for w in x_words)
+    check_program(text, d, program["timed"][:1])         # the coarser C still reproduces the timed points
+
+
+def test_condition_flushing_and_generator_words_follow_the_cutting_legs(program):
+    plan = copy.deepcopy(program["plan"])
+    for leg in plan.cycle.legs:                  # feed and process erode in the finish regime
+        if leg.phase in ("feed", "process"):
+            leg.regime, leg.removed_volume = "finish", 0.5
+    (run,) = program_runs([(plan.plan_id, 0)], {plan.plan_id: PlanCycle.of_plan(plan)})
+    timed = time_run(run.legs, program["machine"])
+    code = program["machine"].process.regimes["finish"].condition_code
+    doc = _dialect_doc("iso_fanuc")
+    doc["edm"].update(condition_select="E{digits}", generator_on="M84", generator_off="M85")
+    d = parse_dialect(doc, "with generator words")
+    text, _ = write_program([ProgramRun(timed, "rear", plan.plan_id)], "p", "g", "plan", program["machine"], d)
+    words = [re.sub(r"^N\d+ ", "", line) for line in text.splitlines()]
+    on, off = words.index("M84"), words.index("M85")
+    digits = re.sub(r"\D", "", code)
+    assert words[on - 2:on] == [f"E{digits}", "M08"] and words[off + 1] == "M09"
+    assert words.count("M84") == 1 and words.count("M85") == 1         # on once for all cutting legs
+    # on before the feed's first block, off before the return's
+    assert words.index("(PHASE FEED CH 0 FEED)") < on < next(i for i, w in enumerate(words) if w.startswith("G")
+                                                              and i > words.index("(PHASE FEED CH 0 FEED)"))
+    assert off == words.index("(PHASE RETURN CH 0 RETURN _THE FEED REVERSED_)") + 1
+    check_program(text, d, [timed])
+    # the process model's code itself as the word: on a machine with a C axis it reads as a C move: refused
+    doc["edm"]["condition_select"] = "{code}"
+    with pytest.raises(EdmError) as e:
+        write_program([ProgramRun(timed, "rear", plan.plan_id)], "p", "g", "plan", program["machine"],
+                      parse_dialect(doc, "code word"))
+    assert e.value.code == ErrorCode.INTERNAL and "axis words without motion" in e.value.message

@@ -97,6 +97,7 @@ class Dialect:
     flushing_on: str
     flushing_off: str
     source: str = ""
+    axis_decimals: tuple = ()     # ((axis, decimals), ...): per-axis overrides of linear/rotary
 
     @property
     def subprograms(self):
@@ -109,6 +110,9 @@ class Dialect:
         return f"{self.comment_open}{body[:self.comment_max]}{self.comment_close}"
 
     def decimals(self, axis):
+        own = dict(self.axis_decimals).get(axis)
+        if own is not None:
+            return own
         return self.linear_decimals if axis in "XYZ" else self.rotary_decimals
 
 
@@ -167,7 +171,12 @@ def parse_dialect(doc, source="<dialect>"):
         channel_shift=s("subprograms.channel_shift"), channel_shift_cancel=s("subprograms.channel_shift_cancel"),
         condition_select=s("edm.condition_select"), generator_on=s("edm.generator_on"),
         generator_off=s("edm.generator_off"), flushing_on=s("edm.flushing_on"), flushing_off=s("edm.flushing_off"),
-        source=str(source))
+        source=str(source),
+        axis_decimals=tuple((a, _need(doc, f"decimals.{a}", int, source)) for a in "XYZABC"
+                            if a in (doc.get("decimals") or {})))
+    if not all(0 <= v <= 6 for _, v in d.axis_decimals + (("", d.linear_decimals), ("", d.rotary_decimals),
+                                                          ("", d.feed_decimals))):
+        raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: decimals must be 0..6")
     if d.subprogram_placement not in ("after_main", "before_main"):
         raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: subprograms.placement must be after_main or before_main")
     if d.block_numbers and not 0 < d.block_start <= d.block_max:

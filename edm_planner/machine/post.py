@@ -234,7 +234,7 @@ def _phase_events(dialect, writer, mark, state, regimes, channels=True):
     if regime and regime != state.get("regime"):
         code = mark.condition_code
         if dialect.condition_select:
-            writer.block(dialect.condition_select.format(code=code))
+            writer.block(dialect.condition_select.format(code=code, digits=re.sub(r"\D", "", code)))
         else:
             writer.comment(f"REGIME {regime} CONDITION {code} SET ON THE GENERATOR")
         regimes.add(regime)

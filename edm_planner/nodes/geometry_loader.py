@@ -18,6 +18,8 @@ max_yaml_bytes, max_mesh_bytes, max_table_bytes : int
     and a table (blade sections, meridional lines): a larger file is refused
     (FILE_ERROR) before it is parsed. Defaults 4 MiB, 200 MiB, 16 MiB.
 
+Notes
+-----
 Services: ``load_geometry`` (edm_planner_msgs/LoadGeometry).
 Topics (TRANSIENT_LOCAL, depth 1): ``geometry`` (edm_planner_msgs/BliskGeometry),
 ``geometry_markers`` (visualization_msgs/MarkerArray).
