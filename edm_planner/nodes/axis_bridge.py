@@ -440,15 +440,17 @@ class AxisBridgeNode(Node):
             return None, f" ({exc.message})"
 
     def _plan_of_sequence(self, plan_id, sequence_id):
+        # the store's record first: it keeps the whole cycle, wear compensation included, which a ChannelPlan
+        # message does not carry (a program from the message would run every channel uncompensated)
+        plan, note = self._from_store(plan_id)
+        if plan is not None:
+            return plan
         with self._lock:
             known = self.plans.get(plan_id)
         if known is not None and known.cycle is not None:
             return known.as_plan_cycle()
-        plan, note = self._from_store(plan_id)
-        if plan is None:
-            raise EdmError(ErrorCode.UNKNOWN_ID, f"sequence {sequence_id}: its plan {plan_id} is not in the plan "
-                                                 f"store{note}")
-        return plan
+        raise EdmError(ErrorCode.UNKNOWN_ID, f"sequence {sequence_id}: its plan {plan_id} is not in the plan "
+                                             f"store{note}")
 
     def _sequence_trajectory(self, sequence, request, response):
         """The trajectory of electrode ``request.electrode`` of a sequence; (arrays, summary head, export name)."""
