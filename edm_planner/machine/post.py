@@ -31,7 +31,7 @@ resolution; :func:`write_program` runs it on everything it writes.
 import bisect
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -123,7 +123,7 @@ def _weights(dialect, names):
     return np.array([1.0 if n in LINEAR else dialect.rotary_lever for n in names])
 
 
-def _segments(dialect, names, q, t, breaks):
+def _segments(dialect, names, q, breaks):
     """Blocks of one stretch of points: [(first, last)] point indices, merged where the dialect allows.
 
     A block runs from point ``first`` to point ``last``; interior points are left out when each lies within
@@ -175,7 +175,7 @@ def _segments(dialect, names, q, t, breaks):
     return out
 
 
-def _motion(dialect, names, q, t, marks, writer, stats, edm_state, regimes, channels=True):
+def _motion(dialect, names, q, t, marks, writer, stats, edm_state, channels=True):
     """Write the blocks of points 0..n (point 0 is where the machine is); marks at their point indices."""
     by_index = {}
     for m in marks:
@@ -183,9 +183,9 @@ def _motion(dialect, names, q, t, marks, writer, stats, edm_state, regimes, chan
     lin = np.array([n in LINEAR for n in names])
     breaks = sorted(by_index)
     mode = None
-    for a, b, dev, rotary in _segments(dialect, names, q, t, breaks):
+    for a, b, dev, rotary in _segments(dialect, names, q, breaks):
         for m in by_index.get(a, ()):
-            _phase_events(dialect, writer, m, edm_state, regimes, channels)
+            _phase_events(dialect, writer, m, edm_state, channels)
         seconds = float(t[b] - t[a])
         length = float(np.linalg.norm(q[b, lin] - q[a, lin]))
         feed = dialect.rotary_feed if rotary else dialect.linear_feed
@@ -219,11 +219,11 @@ def _motion(dialect, names, q, t, marks, writer, stats, edm_state, regimes, chan
         stats.merged_points += b - a - 1
         stats.max_merge_deviation = max(stats.max_merge_deviation, dev)
     for m in by_index.get(len(q) - 1, ()):
-        _phase_events(dialect, writer, m, edm_state, regimes, channels)
+        _phase_events(dialect, writer, m, edm_state, channels)
     stats.points += len(q) - 1
 
 
-def _phase_events(dialect, writer, mark, state, regimes, channels=True):
+def _phase_events(dialect, writer, mark, state, channels=True):
     """Comment the leg; switch condition, flushing and generator as the mark's regime asks.
 
     In a subprogram (``channels`` False) the comment names no channel: the call's comment does.
@@ -237,7 +237,6 @@ def _phase_events(dialect, writer, mark, state, regimes, channels=True):
             writer.block(dialect.condition_select.format(code=code, digits=re.sub(r"\D", "", code)))
         else:
             writer.comment(f"REGIME {regime} CONDITION {code} SET ON THE GENERATOR")
-        regimes.add(regime)
     if regime and not state.get("on"):
         for word in (dialect.flushing_on, dialect.generator_on):
             if word:
@@ -277,7 +276,6 @@ def _channel_passes(arrays):
 
 
 def _shifted_marks(marks, first):
-    from dataclasses import replace
     return [replace(m, index=m.index - first) for m in marks]
 
 
@@ -324,7 +322,6 @@ def write_program(runs, name, geometry_id="", kind="plan", machine=None, dialect
     main = _Writer(d)
     main.number += d.block_increment          # the safety line is the first block
     subs, sub_text = [], {}                   # [(number, title, writer)], canonical text -> number
-    regimes = set()
     total = sum(r.arrays.duration for r in runs)
     ia = names.index("A") if "A" in names else None
     for order, run in enumerate(runs):
@@ -350,14 +347,14 @@ def write_program(runs, name, geometry_id="", kind="plan", machine=None, dialect
                                                     [v for n, v in zip(names, q[0]) if n != "X"]))
         edm_state = {}
         if not use_subs or ia is None or not any(m.phase == "index" for m in arrays.phases or ()):
-            _motion(d, names, q, t, arrays.phases or [], main, stats, edm_state, regimes)
+            _motion(d, names, q, t, arrays.phases or [], main, stats, edm_state)
             _generator_off(d, main, edm_state)
             continue
         base_a, shift_vec = None, np.zeros(len(names))
         for what, a, b, channel, marks in _channel_passes(arrays):
             if what == "index":
                 _motion(d, names, q[a:b + 1] - shift_vec, t[a:b + 1], _shifted_marks(marks, a), main, stats,
-                        edm_state, regimes)
+                        edm_state)
                 continue
             if base_a is None:
                 base_a = float(q[a, ia])
@@ -367,7 +364,7 @@ def write_program(runs, name, geometry_id="", kind="plan", machine=None, dialect
             shift_vec[ia] = math.radians(shift)
             local = q[a:b + 1] - shift_vec
             sub, sub_stats, sub_state = _Writer(d), PostStats(), {}
-            _motion(d, names, local, t[a:b + 1], _shifted_marks(marks, a), sub, sub_stats, sub_state, regimes,
+            _motion(d, names, local, t[a:b + 1], _shifted_marks(marks, a), sub, sub_stats, sub_state,
                     channels=False)
             _generator_off(d, sub, sub_state)
             key = "\n".join(line.split(" ", 1)[1] if d.block_numbers and line.startswith("N") else line
