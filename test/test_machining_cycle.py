@@ -222,7 +222,7 @@ def test_a_thin_electrode_reports_its_stock(rear, tmp_path):
         assert s.stock_max > 2.0
     assert not report.every_sample_within_tolerance, "a too thin electrode leaves stock beyond the tolerance"
     # written out with its picture
-    from edm_planner.machining.removal import plot_stock_maps
+    from edm_planner.records.stock_maps import plot_stock_maps
     plot_stock_maps(report, tmp_path / "thin.png")
     assert (tmp_path / "thin.png").stat().st_size > 20_000
 

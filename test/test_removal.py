@@ -9,8 +9,8 @@ import pytest
 import trimesh
 
 from edm_planner.geometry.frames import cartesian_to_cylindrical, rotation_about_x
-from edm_planner.machining.removal import (MeshDistance, Sweep, plot_stock_maps, simulate_removal,
-                                           stock_at_points, stock_vertex_colours, wall_samples)
+from edm_planner.machining.removal import MeshDistance, Sweep, simulate_removal, stock_at_points, wall_samples
+from edm_planner.records.stock_maps import plot_stock_maps, stock_vertex_colours
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 GAP = 0.1

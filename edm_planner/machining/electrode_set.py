@@ -23,7 +23,7 @@ the tolerance (``area_fraction_beyond_inherent``) is at most
 ``max_area_above`` of its area, and nothing is overcut beyond the tolerance.
 The corner rounding (what an ideal electrode leaves in the concave corners,
 radius = gap) is computed from the walls' own geometry
-(:func:`.removal.corner_rounding_stock`), not by this module's design code,
+(:func:`.corner_rounding.corner_rounding_stock`), not by this module's design code,
 so a fault of the design is never written off as inherent. The strict
 share against sharp corners (``area_fraction_above_tolerance``) is reported
 beside it, not accepted on. Among the accepted candidates with the fewest
@@ -50,8 +50,12 @@ from ..machine.kinematics import axis_poses
 from ..planning.certify import AGREEMENT_ACCURACY
 from ..planning.plan import PlanOptions
 from ..planning.planner import add_exact_clearance, plan_channel, plan_id_for
+from .corner_rounding import corner_rounding_stock
 from .cycle import CycleBuilder, CycleOptions, shift_channel
+from .removal import simulate_removal
 from .set_progress import SetDesignCancelled, SetProgress, terminate_pool
+from .swept_stock import Sweep
+from .wall_samples import wall_samples
 
 _log = logging.getLogger(__name__)
 
@@ -486,14 +490,12 @@ class SetDesigner:
 
     # -- the removal proof of a candidate ------------------------------------------------------
     def sweeps(self, candidate):
-        """A :class:`.removal.Sweep` per piece: the channel-0 poses of its cycle's moves that retrace none.
+        """A :class:`.swept_stock.Sweep` per piece: the channel-0 poses of its cycle's moves that retrace none.
 
         The return runs the feed backwards, the retract the approach, and every "back" move of copy
         processing its straight moves out: the same electrode positions, which the proof need not visit twice
         (:func:`proof_legs`; about half the poses).
         """
-        from .removal import Sweep
-
         out = []
         for p in candidate.pieces:
             mesh = p.plan.electrode_mesh
@@ -506,13 +508,10 @@ class SetDesigner:
         """The candidate's removal proof; the inherent stock is the corner rounding of the walls themselves.
 
         The reference is computed from the blisk's wall geometry
-        (:func:`.removal.corner_rounding_stock`), independent of the design
+        (:func:`.corner_rounding.corner_rounding_stock`), independent of the design
         code that made the candidates' electrodes.
         """
-        from .removal import corner_rounding_stock, simulate_removal
-
         if self._wall_samples is None:                # the same walls for every candidate
-            from .removal import wall_samples
             self._wall_samples = wall_samples(self.blisk, self.options.removal_spacing)
             self._inherent = corner_rounding_stock(self.blisk, self._wall_samples, self.base.discharge_gap)
         pool = self._workers_pool()               # the sizing workers share out the wall samples
@@ -905,7 +904,7 @@ def write_set(result, out_dir, blisk, store=None):
     import pathlib
 
     from ..planning.export import json_safe, write_plan
-    from .removal import plot_stock_maps
+    from ..records.stock_maps import plot_stock_maps
 
     out = pathlib.Path(out_dir)
     try:
@@ -979,7 +978,7 @@ def write_stock_glb(report, blisk, channel, path, resolution=0.25):
     """The channel's four surfaces coloured by the stock left (the stock maps' colours), as GLB."""
     import trimesh
 
-    from .removal import stock_vertex_colours
+    from ..records.stock_maps import stock_vertex_colours
 
     scene = trimesh.Scene()
     transform = blisk.channel_transform(channel)

@@ -27,6 +27,8 @@ from ..geometry.electrode import Electrode, design_electrodes
 from ..machine.kinematics import axis_poses
 from ..planning.certify import PathCertifier
 from .cycle import CycleBuilder
+from .mesh_distance import MeshDistance
+from .swept_stock import Sweep
 
 
 @dataclass
@@ -126,7 +128,6 @@ def rough_piece(blisk, field, piece, process, cycle_options, walls_cache=None):
     electrode = in_frame_of(found[0], np.asarray(plan.final_pose, dtype=np.float64))
     # measured, not assumed: a left/right split face is drawn in along the arc, which on a twisted channel's
     # inclined split surface is less than the extra offset along its normal
-    from .removal import MeshDistance
     inside = MeshDistance(np.asarray(plan.electrode_mesh.vertices), np.asarray(plan.electrode_mesh.faces))
     inset = float(-inside(np.asarray(electrode.mesh.vertices)).max())
     names = tuple(plan.axis_names)
@@ -154,7 +155,6 @@ def rough_piece(blisk, field, piece, process, cycle_options, walls_cache=None):
 def rough_sweeps(pieces):
     """A removal Sweep per roughing piece: its cycle's poses that retrace none (as the finishing proof)."""
     from .electrode_set import proof_samples
-    from .removal import Sweep
 
     out = []
     for rp in pieces:
@@ -171,13 +171,13 @@ def allowance_figures(rough_report, finish_report, process, tolerance, twinned=N
 
     The ideal twin (the channel shrunk by its offset G = rough gap + allowance a, eroding the rough gap)
     leaves a on the flat walls and more in the concave corners, where its rounding radius is G instead of
-    the finish gap: stock_ideal = a + corner(G) (``corner``: :func:`~.removal.corner_rounding_stock` at G,
+    the finish gap: stock_ideal = a + corner(G) (``corner``: :func:`~.corner_rounding.corner_rounding_stock` at G,
     from the walls alone). The allowance is judged against that, where the finishing proof reaches the
     tolerance with a finishing electrode that has a twin (``twinned``: indices of the finishing sweeps
     with one; None: all), away from the twins' axial ends (``ends``, x [mm]: within the twin's offset plus
     the extra offset of an end the walls keep more stock, which the finishing electrode takes): uniform
     when |stock - stock_ideal| <= band on >= 99 % of that area and nothing is overcut anywhere (stock >= 0).
-    ``samples`` (:func:`~.removal.wall_samples`) weights the shares by area; without, by sample count. Returns a dict per surface (the stock's min and max there, the
+    ``samples`` (:func:`~.wall_samples.wall_samples`) weights the shares by area; without, by sample count. Returns a dict per surface (the stock's min and max there, the
     largest allowance the finishing electrode meets, the share within the band, the smallest stock
     anywhere, the verdict) and for the set.
     """

@@ -54,7 +54,8 @@ def add_roughing(designer, candidate):
     ([], notes).
     """
     from .electrode_set import Piece
-    from .removal import corner_rounding_stock, simulate_removal
+    from .corner_rounding import corner_rounding_stock
+    from .removal import simulate_removal
 
     process = designer.process
     twins, notes, twinned = [], [], []

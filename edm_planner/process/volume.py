@@ -58,6 +58,7 @@ import numba
 import numpy as np
 
 from ..errors import EdmError, ErrorCode
+from ..machining.mesh_distance import MeshDistance  # exact: libigl distance + pseudonormal sign
 
 _log = logging.getLogger(__name__)
 
@@ -345,7 +346,6 @@ def _grid_sd(dist, axes):
 
 def _electrode_sdf(vertices, faces, margin, h):
     """Exact signed distances (positive outside) on a grid over the mesh box grown by ``margin``, spacing h."""
-    from ..machining.removal import MeshDistance  # exact: libigl distance + pseudonormal sign
     dist = MeshDistance(vertices, faces)
     lo, hi = dist.box
     n = np.maximum(np.ceil((hi - lo + 2 * margin) / h).astype(int) + 1, 2)
@@ -354,7 +354,6 @@ def _electrode_sdf(vertices, faces, margin, h):
 
 
 def _mesh_state(blank, g0, res, shape, rho):
-    from ..machining.removal import MeshDistance
     dist = MeshDistance(blank.vertices, blank.faces)
     sd = _grid_sd(dist, [g0[a] + res * (np.arange(shape[a]) + 0.5) for a in range(3)])
     return np.where(np.abs(sd) <= rho, np.where(sd <= 0, 2, 3), np.where(sd < 0, 1, 0)).astype(np.uint8)
