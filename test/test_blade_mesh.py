@@ -1,4 +1,4 @@
-"""Tests of edm_planner.geometry.blade_mesh (closed blade meshes, loading, exact slicing)."""
+"""Tests of the blade mesh modules of edm_planner.geometry (closed blade meshes, loading, exact slicing)."""
 
 import logging
 import re
@@ -9,14 +9,10 @@ import pytest
 import trimesh
 
 from edm_planner.errors import ErrorCode, GeometryError, GeometryFileError
-from edm_planner.geometry.blade_mesh import (
-    FACE_LABELS,
-    BladeFace,
-    closed_blade_mesh,
-    face_grid_mesh,
-    load_blade_mesh,
-    mesh_to_sections,
-)
+from edm_planner.geometry import blade_mesh
+from edm_planner.geometry.mesh_build import FACE_LABELS, MeshFaceLabel, closed_blade_mesh, face_grid_mesh
+from edm_planner.geometry.mesh_read import load_blade_mesh
+from edm_planner.geometry.mesh_sections import mesh_to_sections, mesh_to_sections_with_report
 from edm_planner.geometry.blisk import Blisk, mesh_slice_overlap
 from edm_planner.geometry.frames import cylindrical_to_cartesian, rotation_about_x
 from edm_planner.geometry.loader import load_geometry
@@ -118,16 +114,16 @@ def test_closed_mesh_zero_edge_thickness(swept):
     assert mesh.volume == pytest.approx(_volume(0.0), rel=0.02)
     labels = mesh.face_attributes[FACE_LABELS]
     assert len(labels) == len(mesh.faces)
-    counts = np.bincount(labels, minlength=len(BladeFace))
+    counts = np.bincount(labels, minlength=len(MeshFaceLabel))
     # faces touch at both edges: the edge closures vanish, each cap loses one
     # triangle at either end, and the 2 S edge vertex pairs are merged
-    assert counts[BladeFace.MINUS] == counts[BladeFace.PLUS] == 2 * (S - 1) * (C - 1)
-    assert counts[BladeFace.HUB] == counts[BladeFace.TIP] == 2 * (C - 1) - 2
-    assert counts[BladeFace.EDGE] == 0
+    assert counts[MeshFaceLabel.MINUS] == counts[MeshFaceLabel.PLUS] == 2 * (S - 1) * (C - 1)
+    assert counts[MeshFaceLabel.HUB] == counts[MeshFaceLabel.TIP] == 2 * (C - 1) - 2
+    assert counts[MeshFaceLabel.EDGE] == 0
     assert len(mesh.vertices) == 2 * S * C - 2 * S
     # outward: the minus face looks towards -theta, the plus face towards +theta
     normals, centres = mesh.face_normals, mesh.triangles_center
-    for face, sign in ((BladeFace.MINUS, -1), (BladeFace.PLUS, 1)):
+    for face, sign in ((MeshFaceLabel.MINUS, -1), (MeshFaceLabel.PLUS, 1)):
         sel = labels == face
         assert np.all(sign * np.einsum("ij,ij->i", normals[sel], _e_theta(centres[sel])) > 0)
 
@@ -138,8 +134,8 @@ def test_closed_mesh_cap_normals_point_out_radially():
     centres, normals = mesh.triangles_center, mesh.face_normals
     e_r = centres[:, 1:] / np.linalg.norm(centres[:, 1:], axis=1)[:, None]
     n_r = np.einsum("ij,ij->i", normals[:, 1:], e_r)
-    assert np.all(n_r[labels == BladeFace.HUB] < -0.9)
-    assert np.all(n_r[labels == BladeFace.TIP] > 0.9)
+    assert np.all(n_r[labels == MeshFaceLabel.HUB] < -0.9)
+    assert np.all(n_r[labels == MeshFaceLabel.TIP] > 0.9)
 
 
 def test_closed_mesh_non_zero_edge_thickness():
@@ -147,9 +143,9 @@ def test_closed_mesh_non_zero_edge_thickness():
     mesh = closed_blade_mesh(*_blade(S, C, edge=0.4))
     assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
     assert mesh.volume == pytest.approx(_volume(0.4), rel=0.02)
-    counts = np.bincount(mesh.face_attributes[FACE_LABELS], minlength=len(BladeFace))
-    assert counts[BladeFace.HUB] == counts[BladeFace.TIP] == 2 * (C - 1)
-    assert counts[BladeFace.EDGE] == 2 * 2 * (S - 1)
+    counts = np.bincount(mesh.face_attributes[FACE_LABELS], minlength=len(MeshFaceLabel))
+    assert counts[MeshFaceLabel.HUB] == counts[MeshFaceLabel.TIP] == 2 * (C - 1)
+    assert counts[MeshFaceLabel.EDGE] == 2 * 2 * (S - 1)
     assert len(mesh.vertices) == 2 * S * C
 
 
@@ -160,8 +156,8 @@ def test_closed_mesh_thickness_zero_at_one_edge_and_some_sections():
     plus[::2, -1] = minus[::2, -1]  # trailing edge sharp only at sections 0, 2, 4
     mesh = closed_blade_mesh(minus, plus)
     assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
-    counts = np.bincount(mesh.face_attributes[FACE_LABELS], minlength=len(BladeFace))
-    assert counts[BladeFace.EDGE] == S - 1  # one triangle per trailing-edge quad
+    counts = np.bincount(mesh.face_attributes[FACE_LABELS], minlength=len(MeshFaceLabel))
+    assert counts[MeshFaceLabel.EDGE] == S - 1  # one triangle per trailing-edge quad
 
 
 @pytest.mark.parametrize("reverse", ["sections", "stations", "both"])
@@ -216,7 +212,7 @@ def test_face_grid_mesh_of_a_blade_face_matches_the_closed_mesh_side():
     closed = closed_blade_mesh(minus, plus)
     labels = closed.face_attributes[FACE_LABELS]
     n_open = np.mean(open_plus.face_normals, axis=0)
-    n_closed = np.mean(closed.face_normals[labels == BladeFace.PLUS], axis=0)
+    n_closed = np.mean(closed.face_normals[labels == MeshFaceLabel.PLUS], axis=0)
     flip = np.dot(n_open, n_closed) < 0
     assert np.dot(face_grid_mesh(plus, flip=flip).face_normals.mean(0), n_closed) > 0
 
@@ -248,7 +244,7 @@ def test_load_fixes_inverted_normals(tmp_path, caplog):
     mesh.invert()
     path = tmp_path / "inverted.stl"
     mesh.export(path)
-    with caplog.at_level(logging.WARNING, logger="edm_planner.geometry.blade_mesh"):
+    with caplog.at_level(logging.WARNING, logger="edm_planner.geometry.mesh_validate"):
         loaded = load_blade_mesh(path)
     assert loaded.volume == pytest.approx(-mesh.volume, rel=1e-5)
     assert "inverted" in caplog.text
@@ -548,7 +544,7 @@ def _sides(minus, plus):
     """Triangles of the closed blade's faces and edge closures, without its end caps."""
     mesh = closed_blade_mesh(minus, plus)
     labels = mesh.face_attributes[FACE_LABELS]
-    return mesh.triangles[(labels != BladeFace.HUB) & (labels != BladeFace.TIP)]
+    return mesh.triangles[(labels != MeshFaceLabel.HUB) & (labels != MeshFaceLabel.TIP)]
 
 
 def _fan_capped(minus, plus, window):
@@ -610,7 +606,7 @@ def _check_past_walls(mesh, bound, extension, exact_blisk):
     hub, shroud = _walls()
     overlap = mesh_slice_overlap(hub, shroud)
     assert overlap == pytest.approx(0.03 * HEIGHT)
-    sections, report = mesh_to_sections(mesh, 25, 81, hub=hub, shroud=shroud, with_report=True)
+    sections, report = mesh_to_sections_with_report(mesh, 25, 81, hub=hub, shroud=shroud)
     assert _check_against_analytic(sections, True, 0.0) < bound
     hub_r, shroud_r = hub.radius_at(sections.x[0]), shroud.radius_at(sections.x[-1])
     assert report["wall_overlap_mm"] == overlap
@@ -765,10 +761,10 @@ def _slotted(s, c, s_cut, c_cut):
     own = np.concatenate(own)
     closed = closed_blade_mesh(minus, plus)
     labels = closed.face_attributes[FACE_LABELS]
-    if np.dot(closed.face_normals[labels == BladeFace.MINUS].mean(0),
+    if np.dot(closed.face_normals[labels == MeshFaceLabel.MINUS].mean(0),
               face_grid_mesh(minus, flip=True).face_normals.mean(0)) < 0:
         own = own[:, ::-1]                        # closed_blade_mesh turned it
-    ends = closed.triangles[(labels != BladeFace.MINUS) & (labels != BladeFace.PLUS)]
+    ends = closed.triangles[(labels != MeshFaceLabel.MINUS) & (labels != MeshFaceLabel.PLUS)]
     return _solid(np.concatenate([own, ends]))
 
 
@@ -812,3 +808,35 @@ def test_a_split_or_self_intersecting_blade_past_the_walls_is_refused(defect, me
     x, r = (float(v) for v in re.search(r"x=([-\d.]+) mm, r=([\d.]+) mm", str(err.value)).groups())
     overlap = mesh_slice_overlap(hub, shroud)
     assert hub.radius_at(x) - overlap - 1e-3 <= r <= shroud.radius_at(x) + overlap + 1e-3
+
+
+# --------------------------------------------------------------------------
+# the old module, blade_mesh: its names import, the renamed and the deprecated warn
+# --------------------------------------------------------------------------
+
+def test_the_old_module_still_exports_its_names():
+    for name in ("FACE_LABELS", "MESH_SUFFIXES", "closed_blade_mesh", "face_grid_mesh", "load_blade_mesh",
+                 "mesh_to_sections"):
+        assert getattr(blade_mesh, name) is not None
+    assert blade_mesh.closed_blade_mesh is closed_blade_mesh and blade_mesh.mesh_to_sections is mesh_to_sections
+
+
+def test_blade_face_of_the_old_module_is_the_mesh_face_label_with_a_warning():
+    with pytest.warns(DeprecationWarning, match="MeshFaceLabel"):
+        from edm_planner.geometry.blade_mesh import BladeFace
+    assert BladeFace is MeshFaceLabel
+    with pytest.raises(AttributeError):
+        blade_mesh.NoSuchName
+
+
+def test_with_report_flag_still_works_with_a_warning(fine_blade):
+    sections, report = mesh_to_sections_with_report(fine_blade, 5, 9)
+    plain = mesh_to_sections(fine_blade, 5, 9)
+    with pytest.warns(DeprecationWarning, match="mesh_to_sections_with_report"):
+        old_sections, old_report = mesh_to_sections(fine_blade, 5, 9, with_report=True)
+    with pytest.warns(DeprecationWarning, match="mesh_to_sections_with_report"):
+        old_plain = mesh_to_sections(fine_blade, 5, 9, with_report=False)
+    assert old_report == report and "axial_extent_mm" in report
+    for s in (plain, old_sections, old_plain):
+        for key in ("x", "r", "theta_minus", "theta_plus"):
+            np.testing.assert_array_equal(getattr(s, key), getattr(sections, key))

@@ -32,7 +32,7 @@ from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
 from edm_planner.errors import ErrorCode, GeometryError, GeometryFileError
-from edm_planner.geometry.blade_mesh import load_blade_mesh
+from edm_planner.geometry.mesh_read import load_blade_mesh
 from edm_planner.geometry.blisk import Blisk
 from edm_planner.geometry.centerline import channel_centerline
 from edm_planner.geometry.electrode import ElectrodeDesign, design_electrodes

@@ -13,7 +13,7 @@ from rclpy.parameter import Parameter
 
 from conftest import CONFIG
 from edm_planner.errors import EdmError, ErrorCode, GeometryFileError
-from edm_planner.geometry import blade_mesh
+from edm_planner.geometry import mesh_read as blade_mesh
 from edm_planner.geometry.loader import (MAX_YAML_ALIASES, FileLimits, expanded_node_count, load_geometry,
                                          parse_document)
 from edm_planner.paths import check_export_name, export_path, open_for_export

@@ -36,7 +36,8 @@ import numpy as np
 REPO = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from edm_planner.geometry.blade_mesh import FACE_LABELS, BladeFace, closed_blade_mesh, load_blade_mesh  # noqa: E402
+from edm_planner.geometry.mesh_build import FACE_LABELS, MeshFaceLabel as BladeFace, closed_blade_mesh  # noqa: E402
+from edm_planner.geometry.mesh_read import load_blade_mesh  # noqa: E402
 from edm_planner.geometry.loader import load_geometry  # noqa: E402
 
 #: largest binary STL written [bytes]

@@ -18,8 +18,8 @@ import numpy as np
 
 from ..constants import SIZE, TOL
 from ..errors import GeometryError
-from .blade_mesh import closed_blade_mesh, face_grid_mesh
 from .frames import cylindrical_to_cartesian, rotation_about_x
+from .mesh_build import closed_blade_mesh, face_grid_mesh
 from .parametric import SPAN_EXTENSION
 from .profiles import RevolutionProfile
 from .sections import BladeSections
@@ -58,7 +58,7 @@ MESH_SLICE_FRACTION = SPAN_EXTENSION
 
 
 def mesh_slice_overlap(hub, shroud):
-    """How far :func:`~.blade_mesh.mesh_to_sections` slices a blade mesh beyond hub and shroud [mm].
+    """How far :func:`~.mesh_sections.mesh_to_sections` slices a blade mesh beyond hub and shroud [mm].
 
     ``MESH_SLICE_FRACTION`` (3 %) of the smallest channel height, more than the
     :func:`wall_overlap` (2 %) every blade is extended to: the blade's sections

@@ -33,10 +33,12 @@ import numpy as np
 import yaml
 
 from ..errors import GeometryError, GeometryFileError
-from .blade_mesh import load_blade_mesh, mesh_to_sections
 from .blisk import Blisk, mesh_slice_overlap, validate_profiles
 from .centerline import channel_centerline
 from .electrode import ElectrodeDesign, design_electrodes
+from .file_size import check_file_size, too_large_message
+from .mesh_read import load_blade_mesh
+from .mesh_sections import mesh_to_sections_with_report
 from .parametric import parse_parametric
 from .profiles import RevolutionProfile
 from .readers import read_nasa_meridional, read_nasa_table, read_sections_csv, unit_scale
@@ -136,25 +138,10 @@ class FileAccess:
         except OSError as exc:
             raise GeometryFileError(f"{where}: cannot read {path} ({exc.strerror or exc})") from None
         if len(data) > limit:
-            raise GeometryFileError(_too_large(where, real, f"more than {limit}", limit, kind))
+            raise GeometryFileError(too_large_message(where, real, f"more than {limit}", limit, kind))
         self.hashes.append((str(name), hashlib.sha256(data).hexdigest()))
         self.kinds[str(name)] = kind
         return pathlib.Path(real)
-
-
-def _too_large(where, path, size, limit, kind):
-    return (f"{where}: {path} is {size} bytes, larger than the limit for {kind} files of {limit} bytes "
-            f"({limit / 2 ** 20:.4g} MiB; geometry_loader parameter max_{kind}_bytes): not read")
-
-
-def check_file_size(path, limit, where, kind):
-    """GeometryFileError when the file at ``path`` is larger than ``limit`` bytes (checked without reading it)."""
-    try:
-        size = os.stat(path).st_size
-    except OSError as exc:
-        raise GeometryFileError(f"{where}: cannot read {path} ({exc.strerror or exc})") from None
-    if size > limit:
-        raise GeometryFileError(_too_large(where, path, size, limit, kind))
 
 
 @dataclass(eq=False)
@@ -228,7 +215,7 @@ class LoadedGeometry:
         The extra ``input_mesh_*`` keys (lengths in mm; not fields of
         GeometrySummary.msg, and not to be confused with ``blade_mesh_*``,
         the blisk's own blade mesh re-sampled from its faces) are the report
-        of :func:`~.blade_mesh.mesh_to_sections`: the input mesh's axial and
+        of :func:`~.mesh_sections.mesh_to_sections_with_report`: the input mesh's axial and
         radial extent, how far it reaches beyond hub and shroud, the wall
         overlap, the span actually sliced and whether it was clipped to the
         walls.
@@ -302,9 +289,8 @@ def _blade(spec, hub, shroud, files):
         if isinstance(v, bool) or not isinstance(v, int) or v < lo or v > 1000:
             raise GeometryError(f"blade.mesh.{key}: must be an integer in {lo} .. 1000, got {v!r}")
         counts[key] = v
-    sections, report = mesh_to_sections(mesh, counts["section_count"], counts["station_count"],
-                                        hub=hub, shroud=shroud, overlap=mesh_slice_overlap(hub, shroud),
-                                        with_report=True)
+    sections, report = mesh_to_sections_with_report(mesh, counts["section_count"], counts["station_count"],
+                                                    hub=hub, shroud=shroud, overlap=mesh_slice_overlap(hub, shroud))
     return sections, source, report
 
 

@@ -19,6 +19,7 @@ import re
 import numpy as np
 
 from ..errors import GeometryError, GeometryFileError
+from .file_size import check_file_size
 from .sections import BladeSections
 
 LENGTH_UNITS = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
@@ -34,8 +35,6 @@ def unit_scale(unit, where):
 def _read_text(path, max_bytes=None):
     """The file's text; GeometryFileError when it is larger than ``max_bytes`` (checked before reading)."""
     if max_bytes is not None:
-        from .loader import check_file_size
-
         check_file_size(path, max_bytes, str(path), "table")
     try:
         return path.read_text(encoding="utf-8", errors="strict")
