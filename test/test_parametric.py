@@ -1,4 +1,4 @@
-"""Tests of the parametric quintic blade (edm_planner.geometry.parametric)."""
+"""Tests of the parametric quintic blade (edm_planner.geometry.parametric_*)."""
 
 import copy
 import math
@@ -10,16 +10,12 @@ import yaml
 
 from edm_planner.errors import GeometryError
 from edm_planner.geometry.frames import cylindrical_to_cartesian
-from edm_planner.geometry.parametric import (
-    SectionDefinition,
-    definition_outline,
-    interpolate_definitions,
-    parse_parametric,
-    quintic_coefficients,
-    section_outline,
-    stack_sections,
-    tangent_point,
-)
+from edm_planner.geometry import parametric
+from edm_planner.geometry.parametric_outline import (SectionDefinition, definition_outline, section_outline,
+                                                     tangent_point)
+from edm_planner.geometry.parametric_quintic import quintic_coefficients
+from edm_planner.geometry.parametric_stacking import interpolate_definitions, stack_sections
+from edm_planner.geometry.parametric_yaml import SPAN_EXTENSION, parse_parametric
 from edm_planner.geometry.profiles import RevolutionProfile
 from edm_planner.geometry.sections import BladeSections
 
@@ -382,3 +378,10 @@ def test_shroud_below_hub_raises():
 def test_custom_where_prefix():
     with pytest.raises(GeometryError, match=r"my\.blade\.sections\[1\]\.le_radius: must be > 0 mm"):
         parse_parametric(_with_section(1, le_radius=0.0), HUB, SHROUD, where="my.blade")
+
+
+def test_the_old_module_still_exports_its_names():
+    assert parametric.parse_parametric is parse_parametric and parametric.SPAN_EXTENSION == SPAN_EXTENSION
+    for name in ("quintic_coefficients", "tangent_point", "SectionOutline", "section_outline", "SectionDefinition",
+                 "definition_outline", "interpolate_definitions", "stack_sections"):
+        assert getattr(parametric, name) is not None

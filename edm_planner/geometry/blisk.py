@@ -20,7 +20,7 @@ from ..constants import SIZE, TOL
 from ..errors import GeometryError
 from .frames import cylindrical_to_cartesian, rotation_about_x
 from .mesh_build import closed_blade_mesh, face_grid_mesh
-from .parametric import SPAN_EXTENSION
+from .parametric_yaml import SPAN_EXTENSION
 from .profiles import RevolutionProfile
 from .sections import BladeSections
 from .surfaces import BladeFace

@@ -7,7 +7,7 @@ YAML schema (mm, rad; file paths relative to the YAML's directory)::
     hub_profile: [[x, r], ...]            # or {file: F, format: nasa_meridional, length_unit: cm}
     shroud_profile: [[x, r], ...]         # same forms
     blade:                                # exactly one of parametric / sections / mesh
-      parametric: {...}                   # see edm_planner.geometry.parametric
+      parametric: {...}                   # see edm_planner.geometry.parametric_yaml
       sections: {file: F, format: nasa_table | csv, length_unit: mm}
       mesh: F                             # or {file: F, length_unit: mm, section_count: 25, station_count: 81}
       knot_rule: chord                    # optional: chord (default) | paper (Liu 2024 eq. 15)
@@ -39,7 +39,7 @@ from .electrode import ElectrodeDesign, design_electrodes
 from .file_size import check_file_size, too_large_message
 from .mesh_read import load_blade_mesh
 from .mesh_sections import mesh_to_sections_with_report
-from .parametric import parse_parametric
+from .parametric_yaml import parse_parametric
 from .profiles import RevolutionProfile
 from .readers import read_nasa_meridional, read_nasa_table, read_sections_csv, unit_scale
 
