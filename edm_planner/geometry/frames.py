@@ -4,6 +4,7 @@ Convention (workpiece frame W): ``y = r cos(theta)``, ``z = r sin(theta)``.
 """
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 
 def cylindrical_to_cartesian(x, r, theta):
@@ -60,7 +61,5 @@ def is_rigid(pose, tolerance=1e-6):
 
 def pose_difference(a, b):
     """(distance between the origins [mm], angle of the rotation taking one to the other [rad]) of two poses."""
-    from scipy.spatial.transform import Rotation
-
     return (float(np.linalg.norm(a[:3, 3] - b[:3, 3])),
             float(Rotation.from_matrix(a[:3, :3].T @ b[:3, :3]).magnitude()))
