@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from ..errors import EdmError, ErrorCode
-from ..process.model import DEFAULT_PROCESS, ProcessModel, parse_process
+from .process_model import DEFAULT_PROCESS, ProcessModel, parse_process
 
 LINEAR = ("X", "Y", "Z")
 ROTARY = ("A", "B", "C")
