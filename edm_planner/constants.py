@@ -33,4 +33,9 @@ class PlausibleSize:
 
 
 TOL = Tolerances()
+
+#: |R^T R - I| and |det R - 1| accepted as a rigid rotation (poses are products of exact rotations)
+RIGID_TOLERANCE = 1e-9
+#: slack on exact distances (converged Gauss-Newton / Newton) when bounding them [mm]
+EXACT_TOLERANCE = 1e-6
 SIZE = PlausibleSize()

@@ -44,7 +44,7 @@ def warm_up(part=None, cache_dir=None):
     """
     from .geometry.loader import load_geometry
     from .interference.fast import FastChannelField
-    from .interference.plan_check import verify_poses
+    from .interference.pose_check import verify_poses
     from .machining.removal import stock_at_points
 
     t0 = time.perf_counter()

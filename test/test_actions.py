@@ -24,7 +24,7 @@ from trajectory_msgs.msg import JointTrajectory
 from edm_planner.nodes.axis_bridge import AxisBridgeNode
 from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode
 from edm_planner.nodes.trajectory_planner import TrajectoryPlannerNode
-from edm_planner.planning.store import PlanStore
+from edm_planner.records.store import PlanStore
 
 from action_harness import Actions
 from test_trajectory_planner_node import rear_design

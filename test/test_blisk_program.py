@@ -25,7 +25,7 @@ from edm_planner.machine.trajectory import time_run
 from edm_planner.machining.cycle import PHASES
 from edm_planner.machining.program import (INDEX, PlanCycle, blisk_program_steps, program_runs, sequence_id_for,
                                            shift_to_channel)
-from edm_planner.planning.store import PlanStore, PlanStoreError, plan_to_stored, stored_to_plan
+from edm_planner.records.store import PlanStore, PlanStoreError, plan_to_stored, stored_to_plan
 
 
 GAP, TOLERANCE = 0.1, 0.02
@@ -328,7 +328,7 @@ def _run(argv):
 
 def _set_dir(rear, root):
     """An electrode-set directory as `edm-plan plan` writes it (write_set): two electrode exports and set.json."""
-    from edm_planner.planning.export import write_plan
+    from edm_planner.records.plan_export import write_plan
 
     g, electrode, plan = rear
     front = _second(plan)

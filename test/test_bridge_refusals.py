@@ -24,8 +24,8 @@ from edm_planner.machining.cycle import Leg, MachiningCycle, ProcessReach
 from edm_planner.nodes.axis_bridge import AxisBridgeNode
 from edm_planner.nodes.geometry_loader import LATCHED
 from edm_planner.nodes.trajectory_planner import axis_path_msg, channel_plan_msg, pose_array_msg
-from edm_planner.planning.certificate import META_KEY, record_digest
-from edm_planner.planning.store import PlanStore, StoredPlan, cycle_to_record
+from edm_planner.records.certificate import META_KEY, record_digest
+from edm_planner.records.store import PlanStore, StoredPlan, cycle_to_record
 
 from test_axis_bridge_node import Inbox
 
@@ -257,8 +257,8 @@ def test_an_export_never_leaves_export_dir(cell, tmp_path):
 def test_the_digest_of_a_published_plan_is_that_of_its_record():
     """What the planner publishes (a cycle's legs rebuilt from cycle_path) hashes as its record: no false refusal."""
     from edm_planner.nodes.axis_bridge import _KnownPlan
-    from edm_planner.planning.certificate import NotCertifiedError
-    from edm_planner.planning.store import stored_to_plan
+    from edm_planner.records.certificate import NotCertifiedError
+    from edm_planner.records.store import stored_to_plan
 
     record = sealed("e1" * 8, feed(channel=4), channel=4, cycle=a_cycle(feed(channel=4)))
     known = _KnownPlan(message(record))

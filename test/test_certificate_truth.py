@@ -19,7 +19,7 @@ import pytest
 
 from edm_planner.geometry.loader import load_geometry
 from edm_planner.interference.fast import FastChannelField
-from edm_planner.interference.plan_check import verify_poses
+from edm_planner.interference.pose_check import verify_poses
 from edm_planner.interference.wall_features import TriangleGrid, WallFeatures
 from edm_planner.machining.cycle import CycleBuilder
 from edm_planner.machining.electrode_set import (Candidate, Piece, SetDesigner, SetOptions,

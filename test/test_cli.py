@@ -9,7 +9,7 @@ import pytest
 from edm_planner.cli import main
 from edm_planner.errors import ErrorCode
 from edm_planner.geometry.loader import load_geometry
-from edm_planner.planning.export import read_plan
+from edm_planner.records.plan_export import read_plan
 
 from conftest import CONFIG
 

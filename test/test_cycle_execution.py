@@ -200,7 +200,7 @@ def bridge(rear, tmp_path_factory):
     from edm_planner.nodes.axis_bridge import AxisBridgeNode
     from edm_planner.nodes.geometry_loader import LATCHED
     from edm_planner.nodes.trajectory_planner import channel_plan_msg, metrics_to_msg, pose_array_msg, axis_path_msg
-    from edm_planner.planning.store import PlanStore, plan_to_stored
+    from edm_planner.records.store import PlanStore, plan_to_stored
     from ros_harness import InProcessRos
 
     g, plan = rear

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from edm_planner.planning.export import read_plan
+from edm_planner.records.plan_export import read_plan
 
 pytestmark = pytest.mark.slow          # nodes over DDS that plan, or the whole product: not in make test-fast
 

@@ -12,7 +12,7 @@ import pytest
 from edm_planner_msgs.msg import ErrorCode
 from edm_planner_msgs.srv import LoadGeometry, PlanElectrodeSet
 
-from edm_planner.planning.store import PlanStore
+from edm_planner.records.store import PlanStore
 
 from conftest import CONFIG
 

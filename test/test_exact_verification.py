@@ -127,7 +127,7 @@ def test_side_test_is_the_sign_of_the_exact_wall_distance(default, field):
 
 
 def test_verify_poses_is_the_minimum_over_every_pose_and_vertex(default, field):
-    from edm_planner.interference.plan_check import verify_poses
+    from edm_planner.interference.pose_check import verify_poses
 
     e = default.electrodes[0]
     pts = np.asarray(e.mesh.vertices)

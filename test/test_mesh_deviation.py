@@ -15,7 +15,7 @@ from edm_planner.geometry.profiles import RevolutionProfile
 from edm_planner.geometry.spline_kernels import eval_many
 from edm_planner.interference import SURFACES
 from edm_planner.interference.exact_points import ProfileDistance
-from edm_planner.planning.export import read_plan, write_plan
+from edm_planner.records.plan_export import read_plan, write_plan
 from edm_planner.planning.plan import AXIS_NAMES, Plan, PlanMetrics, PlanOptions
 
 #: channel of the export: not 0, so the turned meshes and surfaces are what is measured

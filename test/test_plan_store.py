@@ -19,7 +19,7 @@ from edm_planner.errors import ErrorCode
 from edm_planner.planning.plan import PlanOptions
 from edm_planner.planning.planner import plan_channel
 from edm_planner.planning.search import SearchOptions
-from edm_planner.planning.store import (FILE_NAME, PlanStore, PlanStoreError, open_store, plan_to_stored,
+from edm_planner.records.store import (FILE_NAME, PlanStore, PlanStoreError, open_store, plan_to_stored,
                                         request_key, stored_to_plan)
 
 from test_trajectory_planner_node import rear_design

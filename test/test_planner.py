@@ -85,7 +85,7 @@ def test_plan_reports_a_certified_lower_bound_and_the_exact_minimum(default, pla
     assert (lower <= exact).all(), (lower, exact)
     # the exact minimum (branch and bound over every vertex at every sample) is attained where that search
     # says, by the per-pose exact solver, and no pose of a spread-out subset goes below it
-    from edm_planner.interference.plan_check import verify_poses
+    from edm_planner.interference.pose_check import verify_poses
     V = np.asarray(p.electrode_mesh.vertices)
     check = verify_poses(p.poses, V, 5, g.blisk, field)
     where = sorted({t for t, _ in check.argmin.values()} | set(range(0, len(p.poses), len(p.poses) // 40)))

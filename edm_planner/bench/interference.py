@@ -19,7 +19,7 @@ KD-tree queries limited to one thread for every figure):
 densely sampled plan (issue 3): the rear electrode of a front/rear split
 planned on the default blisk with samples close enough for at least 10^4 of
 them, every electrode vertex at every sample checked by
-:func:`~..interference.plan_check.verify_poses` (exact minimum clearance per surface),
+:func:`~..interference.pose_check.verify_poses` (exact minimum clearance per surface),
 on all of numba's threads and on one; and the same on the plan at the
 default sample spacing, and the whole re-check of its export directory.
 
@@ -212,10 +212,11 @@ def bench_verify_plan(geometry, sample_spacing=0.009, cache_dir=None):
     -------
     dict
         JSON-serialisable figures, units in the keys; ``exact_verify_plan_10000_samples_s`` is the time of
-        :func:`~..interference.plan_check.verify_poses` on all threads, without the field's load (given separately).
+        :func:`~..interference.pose_check.verify_poses` on all threads, without the field's load (given separately).
     """
-    from ..interference.plan_check import verify_exported_plan, verify_poses
-    from ..planning.export import write_plan
+    from ..interference.pose_check import verify_poses
+    from ..records.plan_check import verify_exported_plan
+    from ..records.plan_export import write_plan
 
     b = geometry.blisk
     threads = numba.get_num_threads()

@@ -11,8 +11,9 @@
   :mod:`.field_build` (the grid fill), :mod:`.field_query` (per point and
   per pose), :mod:`.exact_solvers` (the exact blade and profile solvers) and
   :mod:`.min_search` (the exact minimum over a pose sequence).
-* :mod:`.plan_check` -- the exact re-check of a plan: every electrode vertex
-  at every sample (``verify_poses``, ``verify_exported_plan``).
+* :mod:`.pose_check` -- the exact re-check of a pose sequence: every electrode
+  vertex at every pose (``verify_poses``; an exported plan's re-check is
+  :mod:`edm_planner.records.plan_check`).
 * :mod:`.criteria` -- the papers' criteria (Huang eq. 3 and the
   neighbour-angle test).
 * :mod:`.segment` -- continuous certification of a motion segment.

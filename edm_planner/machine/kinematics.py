@@ -226,3 +226,13 @@ def offset_axes(final_pose, axis_names, q, offset):
     for i, name in enumerate(("X", "Y", "Z")):
         q[:, names.index(name)] += move[:, i]
     return q
+
+
+def axes_to_poses(axis_names, axes, final_pose, channel, pitch):
+    """Electrode poses in W from exported axis values: the machine's axis values measured from the final machining
+    pose in channel 0 (``edm_planner.records.plan_export.AXES_CONVENTION``); a machine without A indexes the
+    channel with a fixed A, so its poses are turned into ``channel`` (``pitch`` [rad] apart)."""
+    poses = axis_poses(final_pose, axis_names, axes)
+    if "A" not in axis_names:
+        poses = rotation_about_x(channel * pitch)[None] @ poses
+    return poses

@@ -30,7 +30,7 @@ then ask for electrode k + 1.
 Refusals before anything is timed: NOT_CERTIFIED (the plan's certificate
 digest, ChannelPlan ``certificate_sha256`` or the store record's, is missing
 or does not match what the bridge holds: altered after certification, in the
-store or in transit; ``edm_planner.planning.certificate``), INVALID_REQUEST
+store or in transit; ``edm_planner.records.certificate``), INVALID_REQUEST
 (the request's channel, ``expected_geometry_id`` or ``expected_reference_pose``
 disagrees with the plan), INFEASIBLE (a sample of a leg outside the travel,
 named with leg, sample, axis, value and travel).
@@ -109,8 +109,8 @@ from ..machine.post import ProgramRun, write_program
 from ..machine.trajectory import check_samples_travel, plan_trajectory, time_run
 from ..machining.program import PlanCycle, program_runs
 from ..paths import export_path, open_for_export
-from ..planning.certificate import certificate_digest, check_digest
-from ..planning.store import PlanStoreError
+from ..records.certificate import certificate_digest, check_digest
+from ..records.store import PlanStoreError
 from .conversions import error_code, msg_to_cycle
 from .geometry_loader import LATCHED
 from .runtime import answer, declare_plan_store, default_machine_file, end_canceled, spin_node

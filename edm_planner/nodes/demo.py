@@ -231,10 +231,10 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=Fal
     from rclpy.executors import SingleThreadedExecutor
     from trajectory_msgs.msg import JointTrajectory
 
-    from .. import plots
+    from ..records import plots
     from ..geometry.frames import rotation_about_x
     from ..interference import SURFACES as SURFACE_NAMES
-    from ..planning.export import read_plan
+    from ..records.plan_export import read_plan
     from .conversions import msg_to_mesh
     from .geometry_loader import LATCHED
 

@@ -96,7 +96,7 @@ def declare_plan_store(node):
     A store that cannot be used (foreign, corrupt, unwritable) is logged and left alone; the node
     works without it and names the reason in its answers.
     """
-    from ..planning.store import PlanStoreError, open_store
+    from ..records.store import PlanStoreError, open_store
 
     node.declare_parameter("plan_store", "")
     try:

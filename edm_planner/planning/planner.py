@@ -33,6 +33,7 @@ from ..geometry.electrode import design_electrodes
 from ..geometry.frames import rotation_about_x
 from ..interference import SURFACES
 from ..interference.fast import FastChannelField
+from ..interference.pose_check import verify_poses
 from ..machine.kinematics import axis_poses, state_axes
 from .certify import AGREEMENT_ACCURACY, PathCertifier
 from .plan import AXIS_NAMES, Plan, PlanMetrics, PlanOptions
@@ -172,12 +173,10 @@ def plan_channel(geometry, channel=0, electrode_id="", options=None, field=None,
 
 def add_exact_clearance(plan, blisk, field=None):
     """Fill ``plan.metrics.clearance_exact``: the exact minimum signed clearance of every electrode vertex
-    at every sample of a certified plan, per surface (:func:`~..interference.plan_check.verify_poses`).
+    at every sample of a certified plan, per surface (:func:`~..interference.pose_check.verify_poses`).
 
-    Returns the :class:`~..interference.plan_check.PoseCheck`.
+    Returns the :class:`~..interference.pose_check.PoseCheck`.
     """
-    from ..interference.plan_check import verify_poses      # it imports the planning package
-
     check = verify_poses(plan.poses, plan.electrode_mesh.vertices, plan.channel, blisk, field,
                          faces=plan.electrode_mesh.faces)
     m = plan.metrics

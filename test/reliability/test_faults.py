@@ -207,7 +207,7 @@ def test_the_loader_killed_while_loading_comes_back_and_the_others_keep_serving(
 
 @pytest.mark.slow
 def test_two_cli_processes_and_the_planner_write_one_store_at_once(cell, field_cache, tmp_path):
-    from edm_planner.planning.store import PlanStore
+    from edm_planner.records.store import PlanStore
 
     before = store_rows(cell.store)
     rear = ["--electrode", "rear", "--split", "front_rear", "--circumferential-reduction", "0.03",

@@ -5,7 +5,7 @@ import sqlite3
 
 import numpy as np
 
-from edm_planner.planning.store import FILE_NAME, StoredPlan
+from edm_planner.records.store import FILE_NAME, StoredPlan
 
 
 def record(i):

@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from edm_planner.planning.store import FILE_NAME, PlanStore
+from edm_planner.records.store import FILE_NAME, PlanStore
 
 from test_faults_records import record, store_rows
 
@@ -38,7 +38,7 @@ if mode == "field":
     f = FastChannelField(g.blisk, spacing=1.0, cache_dir=directory, cache_key=sys.argv[8])
     print("field", f.build_seconds, float(f.error_bound), flush=True)
     sys.exit(0)
-from edm_planner.planning.store import PlanStore, PlanStoreError
+from edm_planner.records.store import PlanStore, PlanStoreError
 store = PlanStore(directory)
 for i in range(first, first + count):
     print("put", i, flush=True)
