@@ -344,7 +344,9 @@ def _plan(args, out, err):
 def _plan_set(args, geometry, options, store, progress, out, err):
     """No design named by the file or the command line: design the channel's electrode set."""
     from .interference.fast import FastChannelField
-    from .machining.electrode_set import SetDesigner, SetOptions, write_set
+    from .machining.electrode_set import SetDesigner, SetOptions
+    from .process.set_process import add_process
+    from .records.set_files import write_set
 
     progress("field", 0.0, 0, 0.0, "distance field")
     field = FastChannelField(geometry.blisk, spacing=0.1, cache_dir=args.cache_dir, cache_key=geometry.geometry_id)
@@ -367,7 +369,7 @@ def _plan_set(args, geometry, options, store, progress, out, err):
     stock = load_stock_mesh(args.stock_mesh) if args.stock_mesh else None
     designer = SetDesigner(geometry, field, options, SetOptions(time_budget=max(args.time_budget, 60.0) * 15),
                            field_cache=(args.cache_dir, geometry.geometry_id), detail=on_step, process=process,
-                           process_resolution=args.volume_resolution, stock_mesh=stock)
+                           process_resolution=args.volume_resolution, stock_mesh=stock, process_step=add_process)
     result = designer.design(args.channel)
     not_kept = ""
     try:

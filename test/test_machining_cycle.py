@@ -18,8 +18,9 @@ from edm_planner.geometry.frames import rotation_about_x
 from edm_planner.geometry.loader import load_geometry
 from edm_planner.machine.kinematics import axis_poses
 from edm_planner.machining.cycle import PHASES, CycleOptions, comb_shares, side_rotations
-from edm_planner.machining.electrode_set import Piece, SetDesigner, SetOptions, candidate_sets, write_set
+from edm_planner.machining.electrode_set import Piece, SetDesigner, SetOptions, candidate_sets
 from edm_planner.machining.removal import simulate_removal
+from edm_planner.records.set_files import write_set
 
 from conftest import CONFIG
 
@@ -144,7 +145,7 @@ def test_the_removal_proof_of_the_rear_cycle(rear):
 def test_the_proof_leaves_out_only_moves_that_retrace_others(rear):
     """Return, retract and every move back of copy processing retrace earlier moves: the proof of the rest
     finds the same stock, to the sampling of the moves (their samples differ, their segments do not)."""
-    from edm_planner.machining.electrode_set import proof_legs, proof_samples, retraces
+    from edm_planner.machining.proof_path import proof_legs, proof_samples, retraces
     from edm_planner.machining.removal import Sweep, stock_at_points, wall_samples
 
     g, field, electrode, plan, builder, cycle = rear

@@ -118,7 +118,7 @@ def test_a_set_with_compensation_schedules_the_front_and_counts_the_electrodes(r
     from conftest import REAR_TOLERANCE
     from edm_planner.machining.cycle import CycleOptions
     from edm_planner.machining.electrode_set import Candidate, Piece, SetDesigner
-    from edm_planner.machining.set_process import add_process
+    from edm_planner.process.set_process import add_process
     from edm_planner.process.model import DEFAULT_PROCESS
 
     g, field, electrode, design, plan, builder = rear_cycle
@@ -126,7 +126,8 @@ def test_a_set_with_compensation_schedules_the_front_and_counts_the_electrodes(r
     low = {**DEFAULT_PROCESS.regimes, "finish": type(finish)(**{**finish.__dict__, "wear_ratio": 0.1})}
     process = type(DEFAULT_PROCESS)(**{**DEFAULT_PROCESS.__dict__, "regimes": low, "rough_and_finish": False,
                                        "wear_compensation": True, "max_compensated_wear": 0.1})
-    designer = SetDesigner(g, field, cycle_options=CycleOptions(tolerance=REAR_TOLERANCE), process=process)
+    designer = SetDesigner(g, field, cycle_options=CycleOptions(tolerance=REAR_TOLERANCE), process=process,
+                           process_step=add_process)
     plan = copy.deepcopy(plan)
     before = [leg.samples.copy() for leg in plan.cycle.legs]
     piece = Piece("rear", "rear", design, plan, plan.cycle)

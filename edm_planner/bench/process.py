@@ -110,12 +110,14 @@ def _design(name, path, process):
     from ..geometry.loader import load_geometry
     from ..interference.fast import FastChannelField
     from ..machining.electrode_set import SetDesigner
+    from ..process.set_process import add_process
 
     if name in DESIGNED:
         return DESIGNED[name]
     g = load_geometry(path)
     field = FastChannelField(g.blisk, spacing=0.1, cache_dir=DEFAULT_CACHE, cache_key=g.geometry_id)
-    result = SetDesigner(g, field, field_cache=(DEFAULT_CACHE, g.geometry_id), process=process).design(0)
+    result = SetDesigner(g, field, field_cache=(DEFAULT_CACHE, g.geometry_id), process=process,
+                         process_step=add_process).design(0)
     DESIGNED[name] = (g, result)
     return g, result
 

@@ -1,7 +1,6 @@
 """Machining a channel: the full cycle (copy processing), the automatic electrode set, the removal proof."""
 
-import warnings
-
+from .. import deprecation
 from .cycle import PHASES, CycleBuilder, CycleOptions, Leg, MachiningCycle, ProcessReach
 from .electrode_set import Candidate, ElectrodeSet, Piece, SetDesigner, SetOptions
 from .removal import RemovalReport, SurfaceStock, simulate_removal
@@ -14,19 +13,14 @@ __all__ = ["PHASES", "CycleBuilder", "CycleOptions", "Leg", "MachiningCycle", "P
            "stock_at_points", "wall_samples"]
 
 #: names that moved up to the records layer (files and pictures): deprecated aliases here, for one release
-_MOVED_TO_RECORDS = {"plot_stock_maps": "stock_maps", "stock_vertex_colours": "stock_maps", "write_set": "set_files"}
+_MOVED_TO_RECORDS = ("plot_stock_maps", "stock_vertex_colours", "write_set")
 
 
 def __getattr__(name):
-    # PEP 562: a lazy import keeps the old names working, with a warning (machining must not import records)
+    # PEP 562, a deprecated alias only: this import runs when an old name is asked for (machining imports no
+    # records module at load time)
     if name in _MOVED_TO_RECORDS:
-        module = _MOVED_TO_RECORDS[name]
-        warnings.warn(f"edm_planner.machining.{name} moved to edm_planner.records.{module}.{name}",
-                      DeprecationWarning, stacklevel=2)
-        if module == "stock_maps":
-            from ..records import stock_maps as moved
-        else:
-            from ..records import set_files as moved
-        value = globals()[name] = getattr(moved, name)   # warned once: ``from`` asks twice
-        return value
+        from ..records import set_files, stock_maps
+        value = globals()[name] = deprecation.moved_name(__name__, name, stock_maps, set_files)
+        return value                      # kept: ``from edm_planner.machining import name`` asks twice, warns once
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

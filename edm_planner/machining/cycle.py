@@ -136,7 +136,7 @@ class ProcessReach:
     ``radial_stock`` what is left on the shroud for another electrode to take.
 
     Wear compensation by feed depth (the machine YAML's ``process.wear_compensation``;
-    :func:`edm_planner.machining.set_process.add_wear_compensation`): in the j-th channel of one
+    :func:`edm_planner.process.set_process.add_wear_compensation`): in the j-th channel of one
     electrode's life the whole cycle runs with the electrode moved ``compensation_depths[j]`` mm along
     ``compensation_front`` (a unit vector, electrode frame), a tool offset (:meth:`MachiningCycle.with_compensation_depth`);
     after ``len(compensation_depths)`` channels a fresh electrode takes over. Empty: no compensation.

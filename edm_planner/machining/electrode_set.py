@@ -34,24 +34,32 @@ shortest cycle. Every candidate tried is reported with why it was rejected.
 import hashlib
 import json
 import logging
+import multiprocessing
 import os
+import pickle
+import queue
 import threading
 import time
-from concurrent.futures import FIRST_COMPLETED, wait
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import asdict, dataclass, field, replace
 
+import numba
 import numpy as np
 
+from .. import deprecation
 from ..errors import EdmError, ErrorCode
 from ..geometry.electrode import ElectrodeDesign, design_electrodes
 from ..geometry.frames import rotation_about_x
 from ..interference import SURFACES
+from ..interference.fast import FastChannelField
 from ..machine.kinematics import axis_poses
 from ..planning.certify import AGREEMENT_ACCURACY
 from ..planning.plan import PlanOptions
 from ..planning.planner import add_exact_clearance, plan_channel, plan_id_for
+from . import proof_path
 from .corner_rounding import corner_rounding_stock
 from .cycle import CycleBuilder, CycleOptions, shift_channel
+from .proof_path import proof_samples
 from .removal import simulate_removal
 from .set_progress import SetDesignCancelled, SetProgress, terminate_pool
 from .swept_stock import Sweep
@@ -143,7 +151,7 @@ class Candidate:
     removal: object = None           # RemovalReport
     truth: dict = None               # certificate_against_proof: per surface, the bound and the proof side by side
     cycle_travel: float = 0.0        # mm of vertex travel over all pieces' cycles
-    process: object = None           # ProcessReport of the delivered candidate (machining.set_process)
+    process: object = None           # ProcessReport of the delivered candidate (process.set_process)
     rough_removal: object = None     # RemovalReport of its roughing twins (rough spark gap)
     allowance: dict = None           # how uniform the allowance the twins leave is (rough_finish.allowance_figures)
     single_regime_reason: str = ""   # why the delivered set has no roughing twins ('' : it has them)
@@ -298,13 +306,29 @@ class SetDesigner:
         candidate are sized in parallel worker processes (``workers``, default
         the CPU count), each loading the field from that cache.
     workers : int, optional
+    process : ProcessModel, optional
+        The EDM process (roughing twins, removed volume, erosion time, wear); part of the set id. None: none.
+    process_resolution : float
+        Voxel size of the removed-volume field [mm].
+    stock_mesh : (MeshBlank, str), optional
+        A pre-machined stock and its SHA-256 (:func:`edm_planner.process.volume.load_stock_mesh`).
+    process_step : callable, optional
+        ``process_step(designer, candidate, process_resolution)``, required with ``process``: the process of
+        the delivered candidate, run at the end of :meth:`design` (after the 0.97 progress report, before the
+        plans are moved to their channel). The process layer's
+        :func:`edm_planner.process.set_process.add_process`; passed in by whoever builds the designer with a
+        process model, since this module (a layer below) imports nothing of ``edm_planner.process``.
     """
 
     def __init__(self, geometry, field, plan_options=None, options=None, cycle_options=None, progress=None,
                  field_cache=None, workers=None, detail=None, process=None, process_resolution=0.5,
-                 stock_mesh=None):
+                 stock_mesh=None, process_step=None):
+        if process is not None and process_step is None:
+            raise ValueError("a SetDesigner with a process model needs its process_step "
+                             "(edm_planner.process.set_process.add_process)")
         self.geometry = geometry
         self.process = process           # ProcessModel: roughing twins, removed volume, erosion time (None: none)
+        self.process_step = process_step
         self.process_resolution = float(process_resolution)
         self.stock_mesh, self.stock_sha256 = stock_mesh if stock_mesh is not None else (None, "")
         self.blisk = geometry.blisk
@@ -494,7 +518,7 @@ class SetDesigner:
 
         The return runs the feed backwards, the retract the approach, and every "back" move of copy
         processing its straight moves out: the same electrode positions, which the proof need not visit twice
-        (:func:`proof_legs`; about half the poses).
+        (:func:`.proof_path.proof_legs`; about half the poses).
         """
         out = []
         for p in candidate.pieces:
@@ -582,9 +606,8 @@ class SetDesigner:
                                   f"certified and delivered, flagged); " + result.message)
         delivered = result.delivered
         if delivered is not None and self.process is not None:
-            from .set_process import add_process
             self._report(0.97, f"{delivered.name}: the EDM process (roughing twins, removed volume, erosion time)")
-            add_process(self, delivered, self.process_resolution)
+            self.process_step(self, delivered, self.process_resolution)
         if delivered is not None:
             proof = dict(delivered.removal.to_dict(), certificate_vs_proof=delivered.truth)
             rough_proof = None if delivered.rough_removal is None else dict(
@@ -634,10 +657,6 @@ class SetDesigner:
         if self.field_cache is None or self.workers < 2:
             return None
         if self._pool is None:
-            import multiprocessing
-            import pickle
-            from concurrent.futures import ProcessPoolExecutor
-
             # spawn, not fork: the caller may be a multi-threaded ROS node
             context = multiprocessing.get_context("spawn")
             self._reports = context.Queue() if self.detail is not None else None
@@ -677,79 +696,11 @@ class SetDesigner:
         judge(cand, self.prove(cand), self.options)
 
 
-def _off_line(points, p, q):
-    """Largest distance of ``points`` from the straight line through p and q in axis space (mm and rad mixed:
-    only ever compared with a rounding tolerance)."""
-    d = q - p
-    length2 = float(d @ d)
-    if length2 == 0.0:
-        return float(np.abs(points - p).max())
-    t = (points - p) @ d / length2
-    return float(np.abs(points - (p + t[:, None] * d)).max())
-
-
-def retraces(a, earlier, tol=1e-9):
-    """Axis samples ``a`` run over motion already made: an earlier move reversed (the return), or a straight
-    move whose segment earlier straight moves on the same line cover (a move back out of copy processing)."""
-    if any(len(a) == len(b) and np.array_equal(a[::-1], b) for b in earlier):
-        return True
-    p, q = a[0], a[-1]
-    if _off_line(a, p, q) > tol:
-        return False
-    d = q - p
-    length2 = float(d @ d)
-    if length2 == 0.0:
-        return any(np.abs(b - p).max(axis=1).min() <= tol for b in earlier)
-    spans = []
-    for b in earlier:
-        if _off_line(b, p, q) <= tol:                 # a straight move on the same line
-            t = (b[[0, -1]] - p) @ d / length2
-            spans.append((float(t.min()), float(t.max())))
-    reach = 0.0
-    for lo, hi in sorted(spans):
-        if lo > reach + tol:
-            break
-        reach = max(reach, hi)
-    return reach >= 1.0 - tol
-
-
-def proof_legs(cycle):
-    """The cycle's legs the removal proof visits: a leg that retraces earlier ones (:func:`retraces`) is left
-    out, since axis values determine the pose: its electrode positions, and what they erode, are the same; so is
-    the clear leg, which moves from the home point away from the blisk (it erodes nothing)."""
-    kept = []
-    for leg in cycle.legs:
-        if leg.phase != "clear" and not retraces(np.asarray(leg.samples, dtype=np.float64), [k.samples for k in kept]):
-            kept.append(leg)
-    return kept
-
-
-def proof_samples(cycle):
-    """(axis samples of the legs the proof visits, in order; indices i where sample i + 1 starts a leg that
-    does not continue from sample i)."""
-    parts, breaks, n = [], [], 0
-    for leg in proof_legs(cycle):
-        s = np.asarray(leg.samples, dtype=np.float64)
-        if parts and np.array_equal(parts[-1][-1], s[0]):
-            s = s[1:]                                 # the rest shared with the leg before
-        elif parts:
-            breaks.append(n - 1)
-        parts.append(s)
-        n += len(s)
-    return np.vstack(parts), np.asarray(breaks, dtype=np.int64)
-
-
 _WORKER = None
 
 
 def _start_worker(geometry_blob, spacing, field_cache, plan_options, options, cycle_options, base, reports=None):
     """Worker process: the geometry, its field from the cache and a designer of its own."""
-    import pickle
-
-    import numba
-
-    from ..interference.fast import FastChannelField
-
     global _WORKER
     numba.set_num_threads(1)             # the pool is the parallelism: one thread per worker process
     geometry = pickle.loads(geometry_blob)
@@ -769,8 +720,6 @@ def _size_in_worker(piece, remaining, where=(0, 1, 0, 1), name=""):
 
 def _drain(reports):
     """The SetProgress records waiting in a worker queue (none without one)."""
-    import queue
-
     out = []
     while reports is not None:
         try:
@@ -880,123 +829,18 @@ def _move_plan(plan, cycle, design, channel, pitch):
     return plan
 
 
-def write_set(result, out_dir, blisk, store=None):
-    """Write a designed set: one plan export per electrode (with its cycle), set.json and the stock maps.
-
-    Parameters
-    ----------
-    result : ElectrodeSet
-    out_dir : path
-        ``<out>/<label>/`` per electrode (in machining order), ``<out>/set.json``,
-        ``<out>/stock.png`` (the chosen set's stock maps).
-    blisk : Blisk
-    store : PlanStore, optional
-        The chosen pieces' plans (with their cycles) are kept there, after
-        every file is written: a store that cannot take them (a full disk)
-        loses no file; :class:`~..planning.store.PlanStoreError` is raised
-        at the end, naming the plans not kept.
-
-    Returns
-    -------
-    pathlib.Path
-        set.json.
-    """
-    import pathlib
-
-    from ..planning.export import json_safe, write_plan
-    from ..records.stock_maps import plot_stock_maps
-
-    out = pathlib.Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise EdmError(ErrorCode.FILE_ERROR, f"cannot write the electrode set to {out}: {exc}") from exc
-    doc = json_safe(result.to_dict())
-    doc["format"] = "edm_planner.electrode_set/1"
-    doc["units"] = {"length": "mm", "angle": "rad", "time": "s"}
-    chosen = result.delivered
-    if chosen is not None:
-        doc["electrodes"] = []
-        for order, piece in enumerate(chosen.pieces):
-            path = write_plan(piece.plan, out / piece.label, blisk)
-            doc["electrodes"].append({"order": order, "label": piece.label, "plan_id": piece.plan.plan_id,
-                                      "regime": piece.regime, "export": str(path.parent.relative_to(out))})
-        if chosen.process is not None:
-            from ..plots import process_plot
-
-            process_plot(chosen.process, out / "process.png")
-            doc["process"] = dict(json_safe(chosen.process.to_dict()), plot="process.png")
-    # the chosen set's stock, or the closest candidate's: where the stock stays is what an engineer asks next
-    proven = [c for c in result.candidates if c.removal is not None]
-    shown = chosen if chosen is not None else min(
-        proven, key=lambda c: max(w.area_fraction_beyond_inherent for w in c.removal.surfaces.values()),
-        default=None)
-    if shown is not None and shown.removal is not None:
-        plot_stock_maps(shown.removal, out / "stock.png")
-        write_stock_glb(shown.removal, blisk, result.channel, out / "stock.glb")
-        doc["stock_map"] = {"file": "stock.png", "glb": "stock.glb", "candidate": shown.name}
-    path = _write_set_json(out, doc)
-    if store is not None and chosen is not None:
-        from ..planning.store import PlanStoreError, plan_to_stored
-
-        failed = []
-        for piece in chosen.pieces:
-            try:
-                store.put(plan_to_stored(piece.plan))
-            except PlanStoreError as exc:
-                failed.append(exc.message)
-        if failed:
-            raise PlanStoreError(f"the set is written to {out}, but {len(failed)} of its {len(chosen.pieces)} "
-                                 f"plans are not kept in the plan store: {failed[0]}")
-    return path
+#: the set's file writers, moved up to the records layer (:mod:`edm_planner.records.set_files`)
+_MOVED_TO_RECORDS = ("write_set", "write_stored_set", "write_stock_glb", "_write_set_json")
+#: what the proof visits of a cycle, moved to :mod:`.proof_path`
+_MOVED_TO_PROOF_PATH = ("proof_legs", "retraces")
 
 
-def write_stored_set(plans, labels, meta, out_dir, blisk):
-    """Write a set kept in the plan store: its plan exports and set.json (``meta``, as stored).
-
-    The stock map needs the proof's arrays, which the store does not keep: an
-    existing ``stock.png`` of the same set (same directory) is left in place.
-    """
-    import pathlib
-
-    from ..planning.export import json_safe, write_plan
-
-    out = pathlib.Path(out_dir)
-    doc = dict(json_safe(meta), format="edm_planner.electrode_set/1",
-               units={"length": "mm", "angle": "rad", "time": "s"})
-    doc["electrodes"] = []
-    for order, (plan, label) in enumerate(zip(plans, labels)):
-        path = write_plan(plan, out / label, blisk)
-        doc["electrodes"].append({"order": order, "label": label, "plan_id": plan.plan_id,
-                                  "export": str(path.parent.relative_to(out))})
-    if (out / "stock.png").exists():
-        doc["stock_map"] = {"file": "stock.png", "candidate": meta.get("delivered")}
-    return _write_set_json(out, doc)
-
-
-def write_stock_glb(report, blisk, channel, path, resolution=0.25):
-    """The channel's four surfaces coloured by the stock left (the stock maps' colours), as GLB."""
-    import trimesh
-
-    from ..records.stock_maps import stock_vertex_colours
-
-    scene = trimesh.Scene()
-    transform = blisk.channel_transform(channel)
-    for name, mesh in blisk.channel_meshes(channel, resolution).items():
-        m = mesh.copy()
-        m.visual = trimesh.visual.ColorVisuals(m, vertex_colors=stock_vertex_colours(m, report, name,
-                                                                                     transform=transform))
-        scene.add_geometry(m, node_name=f"{name} (stock)")
-    scene.export(path)
-    return path
-
-
-def _write_set_json(out, doc):
-    import json
-
-    path = out / "set.json"
-    try:
-        path.write_text(json.dumps(doc, indent=1, allow_nan=False))
-    except OSError as exc:
-        raise EdmError(ErrorCode.FILE_ERROR, f"cannot write {path}: {exc}") from exc
-    return path
+def __getattr__(name):
+    # PEP 562, deprecated aliases only: these imports run when an old name is asked for (machining imports no
+    # records module at load time)
+    if name in _MOVED_TO_RECORDS:
+        from ..records import set_files
+        return deprecation.moved_name(__name__, name, set_files)
+    if name in _MOVED_TO_PROOF_PATH:
+        return deprecation.moved_name(__name__, name, proof_path)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -31,11 +31,11 @@ Plain numpy/scipy/trimesh/libigl; no rclpy. Units: mm, rad, s.
 """
 
 import time
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import deprecation
 from .corner_rounding import CORNERS, corner_rounding_stock
 from .mesh_distance import MeshDistance
 from .removal_tolerances import REMOVAL, REMOVAL_EDGE_DEPTHS, RemovalTolerances
@@ -333,11 +333,9 @@ _MOVED_TO_RECORDS = ("plot_stock_maps", "stock_colour_scale", "stock_vertex_colo
 
 
 def __getattr__(name):
-    # PEP 562: the stock maps moved up to the records layer; a lazy import keeps the old names working, with a
-    # warning, for one release (machining must not import records at module level)
+    # PEP 562, a deprecated alias only: the stock maps moved up to the records layer; this import runs when an
+    # old name is asked for (machining imports no records module at load time)
     if name in _MOVED_TO_RECORDS:
-        warnings.warn(f"edm_planner.machining.removal.{name} moved to edm_planner.records.stock_maps.{name}",
-                      DeprecationWarning, stacklevel=2)
         from ..records import stock_maps
-        return getattr(stock_maps, name)
+        return deprecation.moved_name(__name__, name, stock_maps)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

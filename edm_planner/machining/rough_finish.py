@@ -28,6 +28,7 @@ from ..machine.kinematics import axis_poses
 from ..planning.certify import PathCertifier
 from .cycle import CycleBuilder
 from .mesh_distance import MeshDistance
+from .proof_path import proof_samples
 from .swept_stock import Sweep
 
 
@@ -154,8 +155,6 @@ def rough_piece(blisk, field, piece, process, cycle_options, walls_cache=None):
 
 def rough_sweeps(pieces):
     """A removal Sweep per roughing piece: its cycle's poses that retrace none (as the finishing proof)."""
-    from .electrode_set import proof_samples
-
     out = []
     for rp in pieces:
         samples, breaks = proof_samples(rp.cycle)

@@ -540,8 +540,10 @@ class TrajectoryPlannerNode(Node):
         """PlanElectrodeSet, for the service and the action alike (request: a Request or a Goal, response: a
         Response or a Result); ``detail(SetProgress)`` gets the design's steps, ``job`` (_SetJob) cancels it."""
         from ..machining.cycle import CycleOptions
-        from ..machining.electrode_set import SetDesigner, set_id_for, write_set, write_stored_set
+        from ..machining.electrode_set import SetDesigner, set_id_for
         from ..machining.program import blisk_program_steps
+        from ..process.set_process import add_process
+        from ..records.set_files import write_set, write_stored_set
 
         prepared = self._geometry(request.geometry_id, parsed_only=True)
         gid = prepared.geometry_id
@@ -580,7 +582,8 @@ class TrajectoryPlannerNode(Node):
             cache = self.get_parameter("cache_dir").value or CACHE_ROOT
             designer = SetDesigner(prepared.geometry, prepared.field, options, set_options, cycle_options,
                                    progress=progress, field_cache=(cache, gid), detail=detail, process=process,
-                                   process_resolution=resolution, stock_mesh=self.stock_mesh)
+                                   process_resolution=resolution, stock_mesh=self.stock_mesh,
+                                   process_step=add_process)
             if job is not None:
                 job.attach(designer)
             # a cancelled design raises SetDesignCancelled here, before anything is stored (the plans, the set

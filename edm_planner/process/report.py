@@ -36,7 +36,8 @@ import numpy as np
 
 from ..errors import EdmError, ErrorCode
 from ..machine.kinematics import axis_poses
-from .volume import AnnulusBlank, Cut, removed_volumes
+from ..machining.proof_path import proof_legs
+from .volume import AnnulusBlank, Cut, channel_cavity_volume, removed_volumes
 
 _log = logging.getLogger(__name__)
 
@@ -301,9 +302,7 @@ def compensation_schedule(e, max_compensated_wear, blade_count, has_front=True):
 
 def _cuts(runs, process):
     """One Cut per leg that may erode, and where each cut's result goes (run index, leg index); a leg that
-    retraces earlier ones (:func:`~edm_planner.machining.electrode_set.proof_legs`) erodes nothing."""
-    from ..machining.electrode_set import proof_legs
-
+    retraces earlier ones (:func:`~edm_planner.machining.proof_path.proof_legs`) erodes nothing."""
     cuts, where = [], []
     for i, run in enumerate(runs):
         gap = process.regimes[run.regime].spark_gap
@@ -350,8 +349,6 @@ def plan_process(blisk, runs, process, resolution=0.5, stock_mesh=None, progress
     -------
     ProcessReport
     """
-    from .volume import channel_cavity_volume
-
     t0 = time.perf_counter()
     for run in runs:
         if run.regime not in process.regimes:

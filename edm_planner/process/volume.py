@@ -51,11 +51,14 @@ circumscribed ball (rho), which is what makes the bracket conservative.
 import hashlib
 import logging
 import math
+import pathlib
 import time
 from dataclasses import dataclass
 
 import numba
 import numpy as np
+import trimesh
+from scipy.spatial import ConvexHull
 
 from ..errors import EdmError, ErrorCode
 from ..machining.mesh_distance import MeshDistance  # exact: libigl distance + pseudonormal sign
@@ -295,7 +298,6 @@ def _pair_moves(vertices, poses):
     """
     v = np.asarray(vertices, dtype=np.float64)
     try:
-        from scipy.spatial import ConvexHull
         v = v[ConvexHull(v).vertices]
     except Exception:  # flat or degenerate mesh: every vertex
         pass
@@ -388,10 +390,6 @@ def load_stock_mesh(path):
     FILE_ERROR: unreadable, too large or not a mesh; INVALID_GEOMETRY: not one closed, outward-oriented
     solid (the material is what lies inside it), or non-finite coordinates.
     """
-    import pathlib
-
-    import trimesh
-
     path = pathlib.Path(path)
     try:
         data = path.read_bytes()
