@@ -1,8 +1,8 @@
 """``edm-plan``: the command line of the planner (no ROS needed).
 
 ``edm-plan plan --geometry FILE.yaml --channel K --out DIR`` plans one channel
-and writes the plan export (:mod:`edm_planner.planning.export`); the plan is
-kept in the plan store shared with the nodes (:mod:`edm_planner.planning.store`)
+and writes the plan export (:mod:`edm_planner.records.plan_export`); the plan is
+kept in the plan store shared with the nodes (:mod:`edm_planner.records.store`)
 and an equal request is answered from there. ``edm-plan export`` times a plan
 (an export directory or a plan id in the store) on a machine and writes the NC
 program and the timed CSV; ``edm-plan store list`` shows the stored plans.
@@ -15,22 +15,42 @@ still written (error code, message, where the search stopped) for diagnosis;
 """
 
 import argparse
+import json
 import logging
+import math
 import os
 import pathlib
 import sys
 import time
+from dataclasses import replace
 
-from . import CACHE_ROOT
-from .errors import EdmError, ErrorCode
-from .planning.store import PlanStoreError, open_store
+import numpy as np
+from tqdm import tqdm
+
+from .environment import configure_process
+
+# this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
+configure_process()
+
+from .environment import CACHE_ROOT  # noqa: E402  (after the set-up above)
+from .errors import EdmError, ErrorCode  # noqa: E402
+from .geometry.loader import load_geometry  # noqa: E402
+from .planning.plan import PlanOptions  # noqa: E402
+from .planning.planner import plan_channel  # noqa: E402
+from .planning.search import METHODS, REFERENCES, SearchOptions  # noqa: E402
+from .records.plan_check import verify_exported_plan  # noqa: E402
+from .records.plan_export import _axes_csv, json_safe, read_plan, write_plan  # noqa: E402
+from .records.store import (PlanStoreError, open_store, plan_cycle_of_stored, plan_to_stored,  # noqa: E402
+                            request_key, roughing_to_stored, stored_to_plan)
+
+# The electrode set, the NC export, roughing and the plots import their own modules inside their functions:
+# heavy (the set designer, the post-processor, toppra, matplotlib) and needed by that command only, so the
+# other commands, `edm-plan plan` first, do not pay for them (about 0.2 s here).
 
 DEFAULT_CACHE = CACHE_ROOT
 
 
 def _parser():
-    from .planning.search import METHODS, REFERENCES, SearchOptions
-
     d = SearchOptions()
     p = argparse.ArgumentParser(prog="edm-plan", description="Five-axis EDM electrode path planning for "
                                                              "shrouded blisks (units mm, rad, s).")
@@ -156,8 +176,6 @@ def _progress_argument(parser):
 
 
 def _geometry(args, out):
-    from .geometry.loader import load_geometry
-
     geometry = load_geometry(args.file)
     if args.action == "validate":
         print(f"{args.file}: valid, geometry id {geometry.geometry_id}, {geometry.blisk.blade_count} blades, "
@@ -173,10 +191,6 @@ def _geometry(args, out):
 
 
 def _check(args, out, err):
-    from .geometry.loader import load_geometry
-    from .interference.plan_check import verify_exported_plan
-    from .planning.export import read_plan
-
     geometry = load_geometry(args.geometry)
     plan = read_plan(args.plan_dir)
     if plan.geometry_id != geometry.geometry_id:
@@ -196,12 +210,7 @@ def _check(args, out, err):
 
 
 def _plot(args, out):
-    import pathlib
-
-    import numpy as np
-
-    from . import plots
-    from .planning.export import read_plan
+    from .records import plots
 
     plan = read_plan(args.plan_dir)
     where = pathlib.Path(args.out or args.plan_dir)
@@ -247,8 +256,6 @@ class _Progress:
         return "  ".join(parts + [message])
 
     def _bar(self, stage, fraction, nodes, reference_mm, message):
-        from tqdm import tqdm
-
         if self.bar is None or self.bar.desc != stage:
             self.close()
             self.bar = tqdm(total=100, desc=stage, file=self.stream, unit="%", dynamic_ncols=True,
@@ -265,21 +272,12 @@ class _Progress:
 
 def _design(args, base):
     """The geometry's electrode design with the command line's overrides, or None without any."""
-    from dataclasses import replace
-
     keys = ("discharge_gap", "circumferential_reduction", "radial_reduction", "split", "split_overlap")
     changes = {k: getattr(args, k) for k in keys if getattr(args, k) is not None}
     return replace(base, **changes) if changes else None
 
 
 def _plan(args, out, err):
-    from .geometry.loader import load_geometry
-    from .planning.store import plan_to_stored, request_key, stored_to_plan
-    from .planning.export import write_plan
-    from .planning.plan import PlanOptions
-    from .planning.planner import plan_channel
-    from .planning.search import SearchOptions
-
     try:
         options = PlanOptions(search=SearchOptions(
             method=args.method, reference=args.reference, axes=args.axes, step=args.step,
@@ -357,10 +355,7 @@ def _plan_set(args, geometry, options, store, progress, out, err):
         parts = [record.where(), "time left ?" if left != left else f"time left ~{left:.0f} s", record.message]
         progress("set", record.fraction, 0, 0.0, " | ".join(p for p in parts if p))
 
-    from dataclasses import replace
-
     from .machine.config import default_machine_path, load_machine
-
     from .process.volume import load_stock_mesh
 
     process = load_machine(args.machine or default_machine_path()).process
@@ -418,7 +413,6 @@ def _plan_set(args, geometry, options, store, progress, out, err):
 def _exported_plan(path):
     """(PlanCycle with the export's cycle, blade count) of a plan export directory."""
     from .machining.program import PlanCycle, read_exported_cycle
-    from .planning.export import read_plan
 
     p = read_plan(path)
     cycle = read_exported_cycle(p.path, p.doc)
@@ -429,11 +423,7 @@ def _exported_plan(path):
 
 def _export_job(source, store_dir, all_channels):
     """What to export: dict(name, geometry_id, kind 'plan' | 'electrode_set' | 'blisk_program', plans, steps, pitch)."""
-    import json
-    import math
-    import pathlib
-
-    from .machining.program import PlanCycle, blisk_program_steps
+    from .machining.program import blisk_program_steps
 
     def whole(kind, name, plans, steps, blade_count, program_name=None):
         if not all_channels or kind == "blisk_program":
@@ -481,7 +471,7 @@ def _export_job(source, store_dir, all_channels):
                 if stored.meta.get("set_id") else ""
             raise EdmError(ErrorCode.INVALID_REQUEST, f"--all-channels takes an electrode set: a set directory, or a "
                                                       f"set or program id of the store{hint}")
-        plan = PlanCycle.of_stored(stored)
+        plan = plan_cycle_of_stored(stored)
         return dict(name=plan.plan_id, kind="plan", plans={plan.plan_id: plan}, steps=[(plan.plan_id, plan.channel)],
                     pitch=None, geometry_id=plan.geometry_id)
     seq = store.get_sequence(source) if store is not None else None
@@ -495,7 +485,7 @@ def _export_job(source, store_dir, all_channels):
         if rec is None:
             raise EdmError(ErrorCode.UNKNOWN_ID, f"{seq.kind} {seq.sequence_id}: its plan {plan_id} is not in the "
                                                  f"plan store {where}")
-        plans[plan_id] = PlanCycle.of_stored(rec)
+        plans[plan_id] = plan_cycle_of_stored(rec)
     blade_count = seq.meta.get("blade_count")
     program = seq.meta.get("program_id")
     if not blade_count and program:
@@ -506,10 +496,6 @@ def _export_job(source, store_dir, all_channels):
 
 
 def _export(args, out):
-    import pathlib
-
-    import numpy as np
-
     from .machine.config import default_machine_path, load_machine
     from .machine.nc import program_csv, trajectory_csv
     from .machine.post import ProgramRun, write_program
@@ -569,12 +555,6 @@ def _export(args, out):
 
 
 def _rough(args, out, err):
-    import json
-    import pathlib
-
-    from .geometry.loader import load_geometry
-    from .planning.export import _axes_csv, json_safe
-    from .planning.store import roughing_to_stored
     from .roughing import RoughingOptions, plan_roughing, roughing_plan_id
 
     changes = {k: v for k, v in (("tool_radius", args.tool_radius), ("mu", args.mu), ("allowance", args.allowance))

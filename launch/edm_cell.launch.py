@@ -3,7 +3,7 @@
 Arguments: ``params_file`` (default: share/edm_planner/config/edm_cell.yaml, every parameter with its
 unit) and ``respawn`` (restart a node that exits, 2 s later; default true: a cell runs around the
 clock). Each node runs Fast DDS on loopback UDP when ROS_AUTOMATIC_DISCOVERY_RANGE is
-LOCALHOST (edm_planner/nodes/dds.py). The ROS 2 wheels this project installs have no ``ros2 launch``:
+LOCALHOST (edm_planner/ros/dds.py). The ROS 2 wheels this project installs have no ``ros2 launch``:
 there ``make demo`` brings the same nodes up with the same parameters file.
 """
 

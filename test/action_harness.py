@@ -9,7 +9,7 @@ import time
 
 from action_msgs.msg import GoalStatus
 
-from edm_planner.nodes.action_client import LockedActionClient
+from edm_planner.ros.action_client import LockedActionClient
 
 from ros_harness import wait_for
 

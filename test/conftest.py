@@ -19,13 +19,12 @@ WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
 if WORKER:
     os.environ["ROS_DOMAIN_ID"] = str((int(os.environ["ROS_DOMAIN_ID"]) - 1 + 50 * int(WORKER[2:])) % 100 + 1)
 os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
-# DDS on loopback UDP in this process and every child it starts, before any rclpy.init (edm_planner/nodes/dds.py:
-# Fast DDS's shared memory can hang a node started after one that was killed)
-importlib.import_module("edm_planner.nodes")
-# Compiled numba kernels in the user's cache: edm_planner names the directory in NUMBA_CACHE_DIR (one per
-# version of the kernel sources), so that processes started with another HOME (the demo's fresh user)
-# still find them.
-importlib.import_module("edm_planner")
+# The suite is an entry point: before anything initialises rclpy or imports a kernel module, the process
+# set-up the nodes do (edm_planner/ros/startup.py): DDS on loopback UDP in this process and every child it
+# starts (Fast DDS's shared memory can hang a node started after one that was killed), and the compiled numba
+# kernels in the user's cache, one directory per version of the kernel sources, named in NUMBA_CACHE_DIR so
+# that processes started with another HOME (the demo's fresh user) still find them.
+importlib.import_module("edm_planner.ros.startup").prepare_process()
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 REPO = pathlib.Path(__file__).resolve().parent.parent

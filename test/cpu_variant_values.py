@@ -15,9 +15,9 @@ CONFIG = pathlib.Path(__file__).resolve().parent.parent / "config"
 
 def _poses(final_pose):
     """Poses near the final pose, pulled back out of the channel (off the blade grid) and turned about C."""
-    from edm_planner.bench import _poses_near
+    from edm_planner.bench.common import poses_near
 
-    near = _poses_near(final_pose, 24, seed=3)
+    near = poses_near(final_pose, 24, seed=3)
     out = near[:6].copy()
     out[:, 0, 3] += np.linspace(5.0, 40.0, 6)                      # on the way out: outside the grid
     turned = near[:6].copy()
@@ -27,7 +27,7 @@ def _poses(final_pose):
 
 
 def values(field_cache):
-    from edm_planner.bench import rear_design
+    from edm_planner.bench.common import rear_design
     from edm_planner.geometry.loader import load_geometry
     from edm_planner.interference.fast import FastChannelField
     from edm_planner.interference.wall_features import TriangleGrid

@@ -1,4 +1,4 @@
-"""The action client's answers cannot overtake their requests (edm_planner/nodes/action_client.py).
+"""The action client's answers cannot overtake their requests (edm_planner/ros/action_client.py).
 
 rclpy 7.1's ActionClient files a goal's future only after sending the request: an answer taken by the
 executor thread in between is dropped and the caller waits for ever (what stopped ``make demo``). The
@@ -14,7 +14,7 @@ from edm_planner_msgs.action import ExecutePlan
 from rclpy.action import ActionClient, ActionServer
 from rclpy.node import Node
 
-from edm_planner.nodes.action_client import LockedActionClient
+from edm_planner.ros.action_client import LockedActionClient
 
 
 class SlowFiling:

@@ -17,7 +17,7 @@ from edm_planner.geometry.frames import rotation_about_x
 from edm_planner.machine.config import default_machine_path, load_machine
 from edm_planner.machine.kinematics import FiveAxisKinematics
 from edm_planner.nodes.axis_bridge import AxisBridgeNode
-from edm_planner.nodes.conversions import pose_to_matrix
+from edm_planner.ros.conversions import pose_to_matrix
 from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode
 from edm_planner.nodes.trajectory_planner import TrajectoryPlannerNode
 

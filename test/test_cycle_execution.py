@@ -261,7 +261,7 @@ def _arrays(msg):
 
 
 def test_channel_plan_message_carries_the_cycle_and_the_machining_figures(bridge):
-    from edm_planner.nodes.conversions import msg_to_cycle
+    from edm_planner.ros.conversions import msg_to_cycle
 
     msg, plan = bridge["msg"], bridge["plan"]
     cycle = msg_to_cycle(msg)

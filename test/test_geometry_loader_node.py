@@ -17,7 +17,7 @@ from visualization_msgs.msg import MarkerArray
 from conftest import CONFIG
 from edm_planner.errors import ErrorCode as CoreErrorCode
 from edm_planner.geometry.blisk import Blisk
-from edm_planner.nodes.conversions import msg_to_mesh, pose_to_matrix
+from edm_planner.ros.conversions import msg_to_mesh, pose_to_matrix
 from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode
 
 

@@ -13,7 +13,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from edm_planner.geometry.frames import rotation_about_x
-from edm_planner.nodes.conversions import matrix_to_pose, pose_to_matrix
+from edm_planner.ros.conversions import matrix_to_pose, pose_to_matrix
 from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode
 from edm_planner.nodes.interference_checker import InterferenceCheckerNode
 

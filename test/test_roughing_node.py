@@ -12,7 +12,7 @@ from rclpy.parameter import Parameter
 
 from edm_planner.machine.kinematics import axis_poses
 from edm_planner.nodes.axis_bridge import AxisBridgeNode
-from edm_planner.nodes.conversions import pose_to_matrix
+from edm_planner.ros.conversions import pose_to_matrix
 from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode
 from edm_planner.nodes.trajectory_planner import TrajectoryPlannerNode
 from edm_planner.roughing.distance import RevolutionDistance

@@ -12,7 +12,7 @@ from rclpy.parameter import Parameter
 
 from edm_planner.geometry.frames import rotation_about_x
 from edm_planner.interference.exact_points import ExactChannelDistance, transform_points
-from edm_planner.nodes.conversions import pose_to_matrix
+from edm_planner.ros.conversions import pose_to_matrix
 from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode
 from edm_planner.interference import SURFACES
 from edm_planner.nodes.trajectory_planner import TrajectoryPlannerNode

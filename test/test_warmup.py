@@ -1,5 +1,6 @@
 """The numba warm-up that make setup runs: the whole of it, in its two processes, finishes and says so."""
 
+import os
 import subprocess
 import sys
 
@@ -7,7 +8,7 @@ from conftest import REPO
 
 
 def test_warm_up_runs_both_parts_and_reports():
-    run = subprocess.run([sys.executable, "-m", "edm_planner.warmup"], cwd=REPO, capture_output=True, text=True,
+    run = subprocess.run([sys.executable, "-m", "edm_planner.apps.warmup"], cwd=REPO, capture_output=True, text=True,
                          timeout=1800)
     assert run.returncode == 0, run.stdout + run.stderr
     assert "warm-up (part 0): numba kernels compiled or loaded from the cache in" in run.stdout
@@ -16,7 +17,7 @@ def test_warm_up_runs_both_parts_and_reports():
 
 
 def test_a_bad_part_is_refused_with_a_usage_line():
-    run = subprocess.run([sys.executable, "-m", "edm_planner.warmup", "--part", "7"], cwd=REPO,
+    run = subprocess.run([sys.executable, "-m", "edm_planner.apps.warmup", "--part", "7"], cwd=REPO,
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 2 and "invalid choice" in run.stderr and "Traceback" not in run.stderr
 
@@ -28,14 +29,13 @@ def test_the_kernel_cache_directory_follows_every_kernel_source(tmp_path):
     import os
     import shutil
 
-    import edm_planner
-    from edm_planner import kernel_sources_digest
+    from edm_planner.environment import NUMBA_CACHE_ROOT, kernel_sources_digest
 
     package = tmp_path / "edm_planner"
     shutil.copytree(REPO / "edm_planner", package, ignore=shutil.ignore_patterns("__pycache__"))
     first = kernel_sources_digest(str(package))
     assert first == kernel_sources_digest(str(REPO / "edm_planner"))
-    assert os.environ["NUMBA_CACHE_DIR"] == os.path.join(edm_planner.NUMBA_CACHE_ROOT, first)
+    assert os.environ["NUMBA_CACHE_DIR"] == os.path.join(NUMBA_CACHE_ROOT, first)
     (package / "paths.py").write_text((package / "paths.py").read_text() + "\n# no kernel here\n")
     assert kernel_sources_digest(str(package)) == first
     simd = package / "interference" / "cell_simd.py"
@@ -47,10 +47,10 @@ def test_old_kernel_caches_are_pruned_but_not_the_current_one_or_a_recent_one(tm
     import os
     import time
 
-    import edm_planner
-    from edm_planner.warmup import KEEP_DAYS, prune_kernel_caches
+    from edm_planner import environment
+    from edm_planner.apps.warmup import KEEP_DAYS, prune_kernel_caches
 
-    monkeypatch.setattr(edm_planner, "NUMBA_CACHE_ROOT", str(tmp_path))
+    monkeypatch.setattr(environment, "NUMBA_CACHE_ROOT", str(tmp_path))
     now = time.time()
     for name, age_days in (("current", 400), ("recent", KEEP_DAYS - 1), ("old", KEEP_DAYS + 1)):
         (tmp_path / name / "sub").mkdir(parents=True)
@@ -64,3 +64,29 @@ def test_old_kernel_caches_are_pruned_but_not_the_current_one_or_a_recent_one(tm
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path.parent / "elsewhere"))   # a directory the caller chose
     os.utime(tmp_path / "recent" / "sub" / "kernel.nbc", (0, 0))
     assert prune_kernel_caches(now) == []
+
+
+def test_importing_the_package_changes_nothing_and_the_set_up_call_does():
+    """Importing edm_planner, its domain and its node modules' shared parts leaves the environment alone; the
+    entry points' explicit set-up (configure_process) names numba's cache and OpenMP's wait policy."""
+    import json
+
+    code = (
+        "import json, os, sys\n"
+        "before = dict(os.environ)\n"
+        "import edm_planner, edm_planner.interference.fast, edm_planner.planning.planner, edm_planner.records.store\n"
+        "import edm_planner.ros, edm_planner.nodes, edm_planner.apps\n"
+        "changed = sorted(k for k in set(before) | set(os.environ) if before.get(k) != os.environ.get(k))\n"
+        "from edm_planner.environment import configure_process\n"
+        "cache = configure_process()\n"
+        "print(json.dumps({'changed': changed, 'cache': cache, 'env': os.environ.get('NUMBA_CACHE_DIR'),\n"
+        "                  'omp': os.environ.get('OMP_WAIT_POLICY')}))\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "OMP_WAIT_POLICY")}
+    run = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env, capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    out = json.loads(run.stdout.strip().splitlines()[-1])
+    assert out["changed"] == []
+    from edm_planner.environment import NUMBA_CACHE_ROOT, kernel_sources_digest
+    assert out["cache"] == out["env"] == os.path.join(NUMBA_CACHE_ROOT, kernel_sources_digest())
+    assert out["omp"] == "PASSIVE"

@@ -66,12 +66,12 @@ fi
 
 # numba's on-disk cache is keyed by the kernels' source files: compile them once here, in two processes,
 # instead of in every node, worker and test process that first needs them (at once, on a new clone)
-# (one directory per version of the kernel sources: edm_planner names it in NUMBA_CACHE_DIR)
-NUMBA_DIR=$("$VENV/bin/python" -c 'import os, edm_planner; print(os.environ["NUMBA_CACHE_DIR"])')
+# (one directory per version of the kernel sources: edm_planner.environment names it in NUMBA_CACHE_DIR)
+NUMBA_DIR=$("$VENV/bin/python" -c 'from edm_planner.environment import configure_process; print(configure_process())')
 h=$( (echo "$ROOT"; cat requirements.txt; echo "$NUMBA_DIR") | sha256sum | cut -c1-16)
 if ! fresh numba "$h" || [ ! -d "$NUMBA_DIR" ]; then
   echo "setup: compiling the numba kernels into $NUMBA_DIR (about 2 minutes on a new clone)"
   mkdir -p build
-  "$VENV/bin/python" -m edm_planner.warmup > build/warmup.log 2>&1 || { tail -30 build/warmup.log; exit 1; }
+  "$VENV/bin/python" -m edm_planner.apps.warmup > build/warmup.log 2>&1 || { tail -30 build/warmup.log; exit 1; }
   stamp numba "$h"
 fi

@@ -10,8 +10,13 @@ import resource
 import sys
 import time
 
-from . import SUITES
-from .cpu import AVX2_TARGET, cpu_label, cpu_record
+from ..environment import configure_process
+
+# this entry point's set-up, before the suites import the core's kernel modules (numba's cache directory)
+configure_process()
+
+from .suites import SUITES  # noqa: E402  (after the set-up above)
+from .cpu import AVX2_TARGET, cpu_label, cpu_record  # noqa: E402
 
 
 def main(argv=None):

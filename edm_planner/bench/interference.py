@@ -38,14 +38,14 @@ import numba
 import numpy as np
 
 from ..interference import SURFACES
-from . import CONFIG, rear_design
+from .common import CONFIG, rear_design
 from ..interference.exact_points import ExactChannelDistance
 from ..interference.fast import ACCURATE_WITHIN, FastChannelField
 
 _log = logging.getLogger(__name__)
 
 
-def _best_of(fn, repeat=3):
+def best_of(fn, repeat=3):
     best = np.inf
     for _ in range(repeat):
         t = time.perf_counter()
@@ -138,7 +138,7 @@ def bench_fast(blisk, electrode, spacing=0.1, n_poses=1000, seed=0):
         points = np.concatenate([electrode.samples[k] for k in ("left", "right", "upper", "lower")])
         poses = poses_near(electrode.final_pose, n_poses, seed)
         field.pose_clearances(poses[:2], points)                       # warm
-        t = _best_of(lambda: field.pose_clearances(poses, points))
+        t = best_of(lambda: field.pose_clearances(poses, points))
         n = len(poses) * len(points)
         out.update({"electrode_points": len(points), "poses": len(poses),
                     "fast_pose_clearances_points_per_s": round(n / t),
@@ -152,7 +152,7 @@ def bench_fast(blisk, electrode, spacing=0.1, n_poses=1000, seed=0):
         exact = ExactChannelDistance(blisk)
         sub = world[:: max(1, len(world) // 4000)]
         exact.clearances(sub[:10])
-        t = _best_of(lambda: exact.clearances(sub), repeat=1)
+        t = best_of(lambda: exact.clearances(sub), repeat=1)
         out["exact_points_per_s"] = round(len(sub) / t)
         meshes = list(blisk.channel_meshes().values())
         few = world[:: max(1, len(world) // 1000)]

@@ -17,14 +17,9 @@ import logging
 import time
 
 from ..cli import DEFAULT_CACHE
-from . import CONFIG
+from .common import BLISKS, CONFIG, DESIGNED
 
 _log = logging.getLogger(__name__)
-
-#: name -> geometry file
-BLISKS = {"default_blisk": CONFIG / "default_blisk.yaml", "rotor37": CONFIG / "rotor37.yaml",
-          "mesh_blisk": CONFIG / "mesh_blisk.yaml",
-          "blisk72": CONFIG.parent / "test" / "cases" / "blisk72" / "geometry.yaml"}
 
 
 def cycle_times(plans, blade_count, pitch, machine, labels=None):
@@ -68,7 +63,6 @@ def bench_electrode_set(blisks=BLISKS):
         result = SetDesigner(g, field, field_cache=(cache, g.geometry_id), process=machine.process,
                              process_step=add_process).design(0)
         design_s = time.perf_counter() - t
-        from .process import DESIGNED
         DESIGNED[name] = (g, result)                 # the process suite reuses it when it runs next
         entry = {"design_s": round(design_s, 1), "message": result.message[:600],
                  "candidates": {c.name: {"status": c.status, "reason": c.reason[:300],

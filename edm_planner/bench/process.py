@@ -23,7 +23,7 @@ import time
 import numpy as np
 import trimesh
 
-from . import CONFIG
+from .common import BLISKS, CONFIG, DESIGNED
 
 _log = logging.getLogger(__name__)
 
@@ -33,9 +33,6 @@ RESOLUTIONS = (1.0, 0.5, 0.25, 0.125)
 BLISK_RESOLUTIONS = {"default_blisk": (1.0, 0.5, 0.25), "rotor37": (1.0, 0.5), "mesh_blisk": (1.0, 0.5)}
 
 #: the sets designed by bench_electrode_set in this process (name -> ElectrodeSet), reused here
-DESIGNED = {}
-
-
 def _rot(axis, angle):
     """4x4 rotation by ``angle`` about the coordinate axis ``axis`` (0, 1, 2)."""
     return trimesh.transformations.rotation_matrix(angle, np.eye(3)[axis])
@@ -127,7 +124,6 @@ def blisks(names=None, resolutions=BLISK_RESOLUTIONS):
     from ..machine.config import load_machine
     from ..process.report import ProcessRun, plan_process
     from ..process.volume import channel_cavity_volume
-    from .machining import BLISKS
 
     process = load_machine(CONFIG / "machine.yaml").process
     out = {}

@@ -18,7 +18,7 @@ compared methods do the same work. Figures, units in the keys:
 * ``edm_plan_cli_s``: ``edm-plan plan`` of that electrode as a new process
   (``--store none``: a real plan each time), with the field and numba caches
   warm;
-* ``demo``: ``python -m edm_planner.nodes.demo`` (what ``make demo`` runs)
+* ``demo``: ``python -m edm_planner.apps.demo`` (what ``make demo`` runs)
   with an empty field cache and plan store (a new HOME; numba's cache kept,
   as ``make setup`` leaves it), then once more with what the first run left.
 
@@ -38,7 +38,7 @@ import time
 import numpy as np
 
 from ..cli import DEFAULT_CACHE
-from . import CONFIG, _poses_near, rear_design
+from .common import CONFIG, poses_near, rear_design
 
 _log = logging.getLogger(__name__)
 
@@ -62,7 +62,7 @@ def field_throughput(geometry, field):
 
     e = geometry.electrodes[0]
     pts = np.asarray(e.mesh.vertices)
-    near = _poses_near(e.final_pose, 200)
+    near = poses_near(e.final_pose, 200)
     same = np.repeat(e.final_pose[None], 200, axis=0)
     out = {"electrode_points": len(pts), "poses": len(near), "threads_all": numba.get_num_threads()}
     threads = numba.get_num_threads()
@@ -134,7 +134,7 @@ def demo_runs():
         env = dict(os.environ, HOME=str(home), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
         env.pop("EDM_PLANNER_PLAN_STORE", None)
         env.setdefault("AMENT_PREFIX_PATH", sys.prefix)          # as the Makefile sets it: the nodes' share dir
-        cmd = [sys.executable, "-m", "edm_planner.nodes.demo", "--out", str(home / "demo")]
+        cmd = [sys.executable, "-m", "edm_planner.apps.demo", "--out", str(home / "demo")]
         first, log = _run(cmd, env=env)
         again, _ = _run(cmd, env=env)
         # the first run designs the set (the plan store is empty), the second finds it in the store
@@ -148,14 +148,14 @@ def bench_speed():
     """Every figure of issue 13's targets (see the module's docstring)."""
     from ..geometry.loader import load_geometry
     from ..interference.fast import FastChannelField
-    from ..nodes.bench_service import load_geometry_round_trip, nodes_in_process, service_round_trip
+    from .service import load_geometry_round_trip, nodes_in_process, service_round_trip
 
     g = load_geometry(CONFIG / "default_blisk.yaml")
     field = FastChannelField(g.blisk, spacing=0.1, cache_dir=DEFAULT_CACHE, cache_key=g.geometry_id)
     out = {"field": field_throughput(g, field)}
     _log.warning("speed: field %s", out["field"])
     with nodes_in_process() as nodes:                     # one bring-up for both round trips
-        out["check_interference_1000_poses_ms"] = service_round_trip(1000, _poses_near, nodes=nodes)
+        out["check_interference_1000_poses_ms"] = service_round_trip(1000, poses_near, nodes=nodes)
         out["load_geometry_already_loaded_ms"] = load_geometry_round_trip("default_blisk.yaml", nodes=nodes)
     out["plan_certify"] = plan_certify(g, field)
     _log.warning("speed: plan_certify %s", out["plan_certify"])

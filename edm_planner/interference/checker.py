@@ -23,7 +23,10 @@ from enum import IntEnum
 import numpy as np
 
 from ..errors import EdmError, ErrorCode
+from .criteria import PaperCriteria
 from .exact_points import ExactChannelDistance, pose_clearances
+from .fast import FastChannelField
+from .mesh_exact import MeshChannelChecker
 from .segment import certify_segment, screw_motion
 
 _log = logging.getLogger(__name__)
@@ -118,7 +121,6 @@ class ChannelChecker:
     @property
     def fast(self):
         if self._fast is None:
-            from .fast import FastChannelField
             self._fast = FastChannelField(self.blisk, spacing=self.options.fast_spacing,
                                           cache_dir=self.options.cache_dir, cache_key=self.geometry_id or None)
         return self._fast
@@ -126,14 +128,12 @@ class ChannelChecker:
     @property
     def mesh(self):
         if self._mesh is None:
-            from .mesh_exact import MeshChannelChecker
             self._mesh = MeshChannelChecker(self.blisk, resolution=self.options.mesh_resolution, exact=self.exact)
         return self._mesh
 
     @property
     def paper(self):
         if self._paper is None:
-            from .criteria import PaperCriteria
             self._paper = PaperCriteria(self.blisk, delta1=self.options.paper_delta1,
                                         delta2=self.options.paper_delta2)
         return self._paper

@@ -10,10 +10,12 @@ applies it to an exported plan directory. Units: mm, rad.
 
 import logging
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numba
 import numpy as np
+from scipy.spatial import ConvexHull, QhullError
 
 from ..constants import EXACT_TOLERANCE, RIGID_TOLERANCE
 from ..geometry.frames import rotation_about_x
@@ -21,6 +23,7 @@ from . import SURFACES
 from . import fast as _fast
 from . import min_search as _search
 from .exact_points import transform_points
+from .wall_features import TriangleGrid
 
 _log = logging.getLogger(__name__)
 
@@ -58,8 +61,6 @@ def _vertex_moves(P, V):
     A vertex's move |(R_b - R_a) v + T_b - T_a| is convex in v, so its largest
     value over the vertices is attained at a vertex of their convex hull.
     """
-    from scipy.spatial import ConvexHull, QhullError
-
     if len(P) < 2:
         return np.zeros(0)
     try:
@@ -203,8 +204,6 @@ def verify_poses(poses, vertices, channel, blisk, field=None, *, threshold=0.0, 
     ValueError
         Malformed or non-rigid poses, no vertices.
     """
-    from concurrent.futures import ThreadPoolExecutor
-
     P = np.ascontiguousarray(np.asanyarray(poses, dtype=np.float64).reshape(-1, 4, 4))
     V = np.ascontiguousarray(np.atleast_2d(np.asanyarray(vertices, dtype=np.float64)))
     if len(P) < 1 or V.ndim != 2 or V.shape[1] != 3 or len(V) < 1:
@@ -253,7 +252,6 @@ def verify_poses(poses, vertices, channel, blisk, field=None, *, threshold=0.0, 
     cover = float("nan")
     if faces is not None:
         # the features are sampled in channel 0: the poses taken there
-        from .wall_features import TriangleGrid
         features = field.wall_features
         cover = features.cover
         P0 = _channel_zero(P, channel, blisk.pitch)

@@ -9,6 +9,7 @@ are given in joint coordinates, velocity/acceleration/jerk limits as magnitudes.
 """
 
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,6 +17,8 @@ import numpy as np
 import yaml
 
 from ..errors import EdmError, ErrorCode
+from ..geometry.loader import LimitedSafeLoader
+from .dialect import DEFAULT_DIALECT, DIALECT_DIR, STRUCTURES, load_dialect
 from .process_model import DEFAULT_PROCESS, ProcessModel, parse_process
 
 LINEAR = ("X", "Y", "Z")
@@ -224,8 +227,6 @@ def parse_machine(doc, source="<machine>"):
 
 def _parse_nc(section, source):
     """The ``nc:`` section: the control's dialect and the program structure (the dialect loaded to check it)."""
-    from .dialect import DEFAULT_DIALECT, DIALECT_DIR, STRUCTURES, load_dialect
-
     section = {} if section is None else section
     if not isinstance(section, dict) or set(section) - {"dialect", "structure"}:
         raise EdmError(ErrorCode.INVALID_REQUEST, f"{source}: nc: expected a mapping with dialect and structure, "
@@ -252,8 +253,6 @@ def load_machine(path):
     Read as geometry YAML is (:class:`~edm_planner.geometry.loader.LimitedSafeLoader`: plain data, limits on
     depth, aliases and expanded nodes), at most :data:`MAX_MACHINE_BYTES`.
     """
-    from ..geometry.loader import LimitedSafeLoader
-
     path = Path(path)
     try:
         with open(path, "rb") as f:                      # at most the limit and a byte: /dev/zero ends too
@@ -278,5 +277,4 @@ def default_machine_path():
     here = Path(__file__).resolve().parents[2] / "config" / "machine.yaml"
     if here.exists():
         return here
-    import sys
     return Path(sys.prefix) / "share" / "edm_planner" / "config" / "machine.yaml"

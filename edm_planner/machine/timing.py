@@ -180,6 +180,7 @@ def time_parameterize(samples, axis_names, limits, options=TimingOptions()):
         INVALID_REQUEST for a malformed path, INFEASIBLE when toppra finds no
         parameterisation or a position leaves the travel (axis, value and time named).
     """
+    # heavy: importing toppra takes about 1.5 s (its Cython extension and solvers); only the timing needs it
     import toppra
     import toppra.algorithm as algo
     import toppra.constraint as constraint

@@ -35,6 +35,7 @@ import csv
 import hashlib
 import json
 import pathlib
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -137,21 +138,13 @@ class PlanCycle:
 
     @classmethod
     def of_stored(cls, stored, where="the plan store"):
-        """From a plan-store record (any kind; only channel plans carry a cycle), its certificate digest verified.
+        """Deprecated (until 0.3.0): :func:`edm_planner.records.store.plan_cycle_of_stored`."""
+        # a deprecated alias only: the records layer reads stored plans (.importlinter allows this import)
+        from ..records.store import plan_cycle_of_stored
 
-        NOT_CERTIFIED (:class:`~edm_planner.records.certificate.NotCertifiedError`) for a record without a
-        digest or not matching it: nothing is run that was not certified.
-        """
-        # an upward import (machining -> records), left from before issue 27: reading a stored plan is the
-        # records layer's, where this constructor is to move
-        from ..records.certificate import verify_record
-        from ..records.cycle_record import cycle_from_record
-
-        verify_record(stored, where)
-        cycle = cycle_from_record(stored.meta, stored.arrays) if stored.kind == "channel" else None
-        return cls(stored.plan_id, stored.geometry_id, stored.electrode_id, int(stored.channel),
-                   tuple(stored.axis_names), np.asarray(stored.final_pose, dtype=np.float64),
-                   np.asarray(stored.samples, dtype=np.float64), cycle)
+        warnings.warn("PlanCycle.of_stored is deprecated: use edm_planner.records.store.plan_cycle_of_stored "
+                      "(issue 27); removed in 0.3.0", DeprecationWarning, stacklevel=2)
+        return plan_cycle_of_stored(stored, where)
 
 
 @dataclass

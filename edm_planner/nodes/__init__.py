@@ -1,7 +1,7 @@
-"""ROS 2 adapters (rclpy): parameters in, messages <-> numpy, core calls, results out."""
+"""The ROS 2 nodes (rclpy): parameters in, messages <-> numpy, core calls, results out.
 
-from .dds import use_loopback_udp
-
-# Before any rclpy.init of this process: every entry point of ours (nodes, demo, soak, benches) imports this
-# package first, so each one runs Fast DDS on loopback UDP, never on shared memory (see dds.py).
-DDS_SETUP = use_loopback_udp()
+One module per node: :mod:`.geometry_loader`, :mod:`.interference_checker`, :mod:`.trajectory_planner`,
+:mod:`.axis_bridge`; their shared parts are in :mod:`edm_planner.ros`. Each node's ``main`` sets up the
+process (:func:`edm_planner.ros.prepare_process`: numba's cache, Fast DDS on loopback) before ``rclpy.init``.
+Importing this package does nothing else.
+"""

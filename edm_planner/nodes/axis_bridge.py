@@ -101,6 +101,12 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
+from ..ros.startup import prepare_process
+
+#: this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then) and
+#: before rclpy.init (Fast DDS on loopback): :func:`edm_planner.ros.startup.prepare_process`
+DDS_SETUP = prepare_process()
+
 from ..errors import EdmError, ErrorCode
 from ..geometry.frames import is_rigid, pose_difference, rotation_about_x
 from ..machine.config import LINEAR, load_machine
@@ -110,10 +116,10 @@ from ..machine.trajectory import check_samples_travel, plan_trajectory, time_run
 from ..machining.program import PlanCycle, program_runs
 from ..paths import export_path, open_for_export
 from ..records.certificate import certificate_digest, check_digest
-from ..records.store import PlanStoreError
-from .conversions import error_code, msg_to_cycle
+from ..records.store import PlanStoreError, plan_cycle_of_stored
+from ..ros.conversions import error_code, msg_to_cycle
 from .geometry_loader import LATCHED
-from .runtime import answer, declare_plan_store, default_machine_file, end_canceled, spin_node
+from ..ros.runtime import answer, declare_plan_store, default_machine_file, end_canceled, spin_node
 
 
 def duration_msg(seconds):
@@ -427,7 +433,7 @@ class AxisBridgeNode(Node):
         if stored is None:
             return None, ""
         self.get_logger().info(f"plan {plan_id} read from the plan store {self.store.path}")
-        return PlanCycle.of_stored(stored, f"the plan store {self.store.path}"), ""   # NOT_CERTIFIED if altered
+        return plan_cycle_of_stored(stored, f"the plan store {self.store.path}"), ""   # NOT_CERTIFIED if altered
 
     def _sequence_from_store(self, sequence_id):
         """(StoredSequence, '') or (None, why not)."""

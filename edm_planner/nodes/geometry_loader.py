@@ -40,11 +40,17 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from visualization_msgs.msg import MarkerArray
 
+from ..ros.startup import prepare_process
+
+#: this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then) and
+#: before rclpy.init (Fast DDS on loopback): :func:`edm_planner.ros.startup.prepare_process`
+DDS_SETUP = prepare_process()
+
 from ..errors import EdmError, ErrorCode
 from ..geometry.blisk import CHANNEL_SURFACES
 from ..geometry.loader import FileLimits, GeometryMemo, load_geometry
-from .runtime import spin_node
-from .conversions import error_code, matrix_to_pose, mesh_marker, mesh_to_msg, summary_to_msg
+from ..ros.runtime import spin_node
+from ..ros.conversions import error_code, matrix_to_pose, mesh_marker, mesh_to_msg, summary_to_msg
 
 #: QoS of data that late joiners need (like tf_static)
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,

@@ -38,14 +38,20 @@ from geometry_msgs.msg import Point
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 
+from ..ros.startup import prepare_process
+
+#: this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then) and
+#: before rclpy.init (Fast DDS on loopback): :func:`edm_planner.ros.startup.prepare_process`
+DDS_SETUP = prepare_process()
+
 from .. import CACHE_ROOT
 from ..errors import EdmError, ErrorCode
 from ..geometry.blisk import Blisk
 from ..geometry.electrode import ElectrodeDesign, design_electrodes
 from ..interference.checker import ChannelChecker, CheckerOptions, Method
 from ..machine.kinematics import AXES_5, FiveAxisKinematics
-from .runtime import answer, spin_node
-from .conversions import (design_override, error_code, msg_to_mesh, pose_to_matrix, poses_to_arrays,
+from ..ros.runtime import answer, spin_node
+from ..ros.conversions import (design_override, error_code, msg_to_mesh, pose_to_matrix, poses_to_arrays,
                           quaternions_to_matrices)
 from .geometry_loader import LATCHED
 

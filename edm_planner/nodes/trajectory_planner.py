@@ -53,6 +53,12 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
 
+from ..ros.startup import prepare_process
+
+#: this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then) and
+#: before rclpy.init (Fast DDS on loopback): :func:`edm_planner.ros.startup.prepare_process`
+DDS_SETUP = prepare_process()
+
 from .. import CACHE_ROOT
 from ..errors import EdmError, ErrorCode
 from ..geometry.blisk import Blisk
@@ -62,18 +68,18 @@ from ..interference import SURFACES
 from ..interference.fast import FastChannelField
 from ..machining.set_progress import SetDesignCancelled
 from ..paths import export_path
-from ..planning.certificate import META_KEY, NotCertifiedError, verify_record
+from ..records.certificate import META_KEY, NotCertifiedError, verify_record
 from ..planning.objective import Weights
 from ..planning.plan import PlanMetrics as CorePlanMetrics
 from ..planning.plan import PlanOptions
 from ..planning.planner import plan_channel
 from ..planning.search import SearchOptions
-from ..planning.store import (PlanStoreError, cycle_from_record, plan_to_stored, request_key, roughing_to_stored,
+from ..records.store import (PlanStoreError, cycle_from_record, plan_to_stored, request_key, roughing_to_stored,
                               stored_to_plan)
 from ..roughing import RoughingOptions, plan_roughing, roughing_plan_id
-from .conversions import cycle_fields, design_override, error_code, machining_figures, matrix_to_pose
+from ..ros.conversions import cycle_fields, design_override, error_code, machining_figures, matrix_to_pose
 from .geometry_loader import LATCHED
-from .runtime import answer, declare_plan_store, default_machine_file, end_canceled, spin_node
+from ..ros.runtime import answer, declare_plan_store, default_machine_file, end_canceled, spin_node
 
 def plan_options(settings, default_budget):
     """PlannerSettings message -> PlanOptions (NaN / 0 / empty take the defaults)."""
@@ -463,7 +469,7 @@ class TrajectoryPlannerNode(Node):
         response.poses = pose_array_msg(plan.poses, frame)
         response.axis_path = axis_path_msg(plan.axis_names, plan.samples)
         if request.write_export:
-            from ..planning.export import write_plan
+            from ..records.plan_export import write_plan
             root = self.get_parameter("export_dir").value or os.path.join(
                 os.path.expanduser("~"), ".local", "share", "edm_planner", "plans")
             path = export_path(root, plan.plan_id, "plan id")        # never outside export_dir, never via a link

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..errors import ErrorCode
 from ..interference import SURFACES
+from .objective import Weights
 from .search import SearchOptions
 
 #: axis names per machine configuration (the free axes of the search, plus X, Y, Z)
@@ -173,8 +174,6 @@ class Plan:
 
 def plan_options_from_dict(d):
     """:class:`PlanOptions` from ``dataclasses.asdict`` of one (as stored with a plan)."""
-    from .objective import Weights
-
     d = dict(d)
     search = dict(d.pop("search"))
     search["weights"] = Weights(**{k: tuple(v) for k, v in search["weights"].items()})

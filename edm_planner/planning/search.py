@@ -28,6 +28,7 @@ import numpy as np
 
 from ..errors import ErrorCode
 from ..interference import SURFACES
+from ..interference.wall_features import TriangleGrid
 from ..machine.kinematics import state_poses
 from .ga import GAOptions, NoFeasibleStart, minimize_ga
 from .lp import DenseLp
@@ -171,7 +172,6 @@ class ExitSearch:
         # column of the clearances (label 5, blade surfaces only), which a vertex sample cannot stand for
         self.features, self.triangles = getattr(field, "wall_features", None), None
         if self.features is not None:
-            from ..interference.wall_features import TriangleGrid
             self.triangles = TriangleGrid.from_mesh(electrode.mesh.vertices, electrode.mesh.faces)
             self.labels.append(np.array([5]))
         self.labels = np.concatenate(self.labels)

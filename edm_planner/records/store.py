@@ -20,7 +20,7 @@ Keys
 
 Every record made by :func:`plan_to_stored` and :func:`roughing_to_stored` carries the plan's certificate
 digest (``meta["certificate_sha256"]``, :mod:`edm_planner.records.certificate`); :func:`stored_to_plan` and
-``PlanCycle.of_stored`` refuse a record without one or not matching it (NOT_CERTIFIED).
+:func:`plan_cycle_of_stored` refuse a record without one or not matching it (NOT_CERTIFIED).
 
 A channel plan's record also keeps its machining cycle (every leg's phase,
 label, samples and certified clearance, the process reach, margin and
@@ -65,6 +65,7 @@ import trimesh
 
 from .. import __version__
 from ..errors import EdmError, ErrorCode
+from ..machining.program import PlanCycle
 from ..planning.plan import Plan, PlanMetrics, plan_options_from_dict
 from .certificate import META_KEY, record_digest, verify_record
 from .cycle_record import cycle_from_record, cycle_to_record
@@ -616,6 +617,22 @@ def stored_to_plan(stored, where="the plan store"):
                 samples=stored.samples, poses=stored.poses, nodes=stored.arrays["nodes"],
                 metrics=metrics, cycle=cycle_from_record(stored.meta, stored.arrays),
                 removal=stored.meta.get("removal"), set_id=stored.meta.get("set_id", ""))
+
+
+def plan_cycle_of_stored(stored, where="the plan store"):
+    """The :class:`~edm_planner.machining.program.PlanCycle` of a record (any kind; only channel plans carry a
+    cycle), its certificate digest verified.
+
+    Raises
+    ------
+    NotCertifiedError
+        NOT_CERTIFIED for a record without a digest or not matching it: nothing is run that was not certified.
+    """
+    verify_record(stored, where)
+    cycle = cycle_from_record(stored.meta, stored.arrays) if stored.kind == "channel" else None
+    return PlanCycle(stored.plan_id, stored.geometry_id, stored.electrode_id, int(stored.channel),
+                     tuple(stored.axis_names), np.asarray(stored.final_pose, dtype=np.float64),
+                     np.asarray(stored.samples, dtype=np.float64), cycle)
 
 
 # -- roughing plans ---------------------------------------------------------------------------

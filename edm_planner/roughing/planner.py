@@ -25,6 +25,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import brentq
 
 from ..errors import EdmError, ErrorCode
 from .distance import RevolutionDistance
@@ -196,7 +197,6 @@ def _retract_distance(point, axis, hub, clearance, limit):
     if below(limit) > 0:
         raise EdmError(ErrorCode.INFEASIBLE, f"no retract point within {limit:.1f} mm along the tool axis "
                                              "clears the hub radius; give retract_height")
-    from scipy.optimize import brentq
     return brentq(below, 0.0, limit, xtol=1e-9)
 
 

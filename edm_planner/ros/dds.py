@@ -42,6 +42,8 @@ def profile_path():
     here = pathlib.Path(__file__).resolve()
     candidates = [here.parents[2] / "config" / "dds" / PROFILE_NAME]
     try:
+        # optional here: the set-up runs in processes without the ROS wheels too (the docs build, a bare pip
+        # install of the core); the source tree's profile serves them
         from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
         try:
             candidates.append(pathlib.Path(get_package_share_directory("edm_planner")) / "config" / "dds"

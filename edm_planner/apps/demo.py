@@ -33,9 +33,14 @@ import time
 
 import numpy as np
 
-from .dds import use_loopback_udp
-from .geometry_loader import config_directory
-from .runtime import enable_stack_dumps
+from ..environment import configure_process
+
+# this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
+configure_process()
+
+from ..ros.dds import use_loopback_udp
+from ..nodes.geometry_loader import config_directory
+from ..ros.runtime import enable_stack_dumps
 
 NODES = ("geometry_loader", "interference_checker", "trajectory_planner", "axis_bridge")
 TRAJECTORY_TOPIC = "/edm_controller/joint_trajectory"
@@ -120,7 +125,7 @@ def _action(node, action_type, name, goal, timeout, bringup, on_feedback=None):
 
     Returns (status, result). Interrupted (Ctrl-C), the goal is cancelled before the exception goes on.
     """
-    from .action_client import LockedActionClient
+    from ..ros.action_client import LockedActionClient
 
     client = LockedActionClient(node, action_type, name)
     deadline = time.monotonic() + timeout
@@ -235,8 +240,8 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=Fal
     from ..geometry.frames import rotation_about_x
     from ..interference import SURFACES as SURFACE_NAMES
     from ..records.plan_export import read_plan
-    from .conversions import msg_to_mesh
-    from .geometry_loader import LATCHED
+    from ..ros.conversions import msg_to_mesh
+    from ..nodes.geometry_loader import LATCHED
 
     share = pathlib.Path(sys.prefix) / "share" / "edm_planner" / "config"
     from rclpy.signals import SignalHandlerOptions

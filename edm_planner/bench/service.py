@@ -21,7 +21,7 @@ def nodes_in_process():
     import os
     import threading
 
-    from .dds import loopback_unless_told
+    from ..ros.dds import loopback_unless_told
 
     loopback_unless_told()
     os.environ.setdefault("ROS_DOMAIN_ID", str(101 - os.getpid() % 50))
@@ -30,8 +30,8 @@ def nodes_in_process():
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.node import Node
 
-    from .geometry_loader import GeometryLoaderNode
-    from .interference_checker import InterferenceCheckerNode
+    from ..nodes.geometry_loader import GeometryLoaderNode
+    from ..nodes.interference_checker import InterferenceCheckerNode
 
     ctx = Context()
     rclpy.init(context=ctx)
@@ -87,7 +87,7 @@ def service_round_trip(n_poses, poses_near, repeat=7, nodes=None):
     """Median round trip [ms] of CheckInterference (fast method) of ``n_poses`` poses near the final pose."""
     from edm_planner_msgs.srv import CheckInterference
 
-    from .conversions import matrix_to_pose
+    from ..ros.conversions import matrix_to_pose
 
     with _bring_up(nodes) as (_, checker, client):
         gid, ch = next(iter(checker.checkers.items()))

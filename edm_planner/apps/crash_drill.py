@@ -12,7 +12,7 @@ answer a request over DDS within ``deadline`` seconds; a node that does not
 is reported with its Python stacks (``SIGUSR1``: faulthandler in
 :func:`~.runtime.spin_node`) and the tail of its log.
 
-``python -m edm_planner.nodes.crash_drill --dds loopback-udp|stock``: the
+``python -m edm_planner.apps.crash_drill --dds loopback-udp|stock``: the
 measurement behind ``config/dds/fastdds_loopback_udp.xml`` (``stock`` runs
 rmw_fastrtps's own LOCALHOST set-up, shared memory included); JSON on stdout.
 ``test/reliability/test_crash_drill.py`` runs it on the project's set-up.
@@ -28,6 +28,11 @@ import sys
 import tempfile
 import threading
 import time
+
+from ..environment import configure_process
+
+# this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
+configure_process()
 
 NODES = ("geometry_loader", "interference_checker", "trajectory_planner", "axis_bridge")
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -235,7 +240,7 @@ def run(sets=4, rounds=2, deadline=180.0, log_dir=None, field_cache=None, progre
 
     from edm_planner_msgs.srv import LoadGeometry
 
-    from .geometry_loader import config_directory
+    from ..nodes.geometry_loader import config_directory
 
     work = pathlib.Path(log_dir or tempfile.mkdtemp(prefix="crash_drill_"))
     work.mkdir(parents=True, exist_ok=True)
@@ -320,7 +325,7 @@ def main(argv=None):
     args = p.parse_args(argv)
     # killed (SIGTERM) or interrupted, the drill still stops every node it started (run()'s finally)
     signal.signal(signal.SIGTERM, signal.default_int_handler)
-    from . import dds
+    from ..ros import dds
 
     setup = dds.loopback_unless_told()
     if args.dds == "stock":

@@ -2,11 +2,18 @@
 
 import faulthandler
 import logging
+import os
 import signal
 import time
 
 import rclpy
+from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+
+from ..errors import EdmError, ErrorCode
+from ..machine.config import default_machine_path
+from ..records.store import PlanStoreError, open_store
+from .conversions import error_code
 
 
 #: threads of a node process's executor
@@ -71,9 +78,6 @@ def answer(node, service, fill, request, response):
     INTERNAL with the exception (logged with its traceback); a response with a ``success``
     field gets ``False`` then. ``fill`` sets the error code of the requests it answers itself.
     """
-    from ..errors import EdmError, ErrorCode
-    from .conversions import error_code
-
     try:
         fill(request, response)
         return response
@@ -96,8 +100,6 @@ def declare_plan_store(node):
     A store that cannot be used (foreign, corrupt, unwritable) is logged and left alone; the node
     works without it and names the reason in its answers.
     """
-    from ..records.store import PlanStoreError, open_store
-
     node.declare_parameter("plan_store", "")
     try:
         return open_store(node.get_parameter("plan_store").value), ""
@@ -109,11 +111,6 @@ def declare_plan_store(node):
 def default_machine_file():
     """The machine YAML the nodes use when none is named: the installed share directory's, else the source
     tree's (the axis bridge times on it, the planner plans the process with it: the same file)."""
-    import os
-
-    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-
-    from ..machine.config import default_machine_path
     try:
         path = os.path.join(get_package_share_directory("edm_planner"), "config", "machine.yaml")
         if os.path.exists(path):

@@ -14,7 +14,7 @@ cache, which the kernel can drop and which grow as queries first touch them);
 at the end the latency percentiles per kind of call.
 
 A repeated PlanChannel must return its first answer's axis path and poses bit
-for bit; every call must succeed. ``python -m edm_planner.nodes.soak --out
+for bit; every call must succeed. ``python -m edm_planner.apps.soak --out
 out/soak.json`` (``make soak``: 1000 CheckInterference, 100 PlanChannel).
 """
 
@@ -31,7 +31,12 @@ import time
 
 import numpy as np
 
-from .. import CACHE_ROOT
+from ..environment import configure_process
+
+# this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
+configure_process()
+
+from ..environment import CACHE_ROOT
 
 _log = logging.getLogger(__name__)
 
@@ -158,7 +163,7 @@ def run_soak(work_dir, n_check=1000, n_plan=100, n_distinct=50, sample_every=100
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.node import Node
 
-    from .dds import loopback_unless_told
+    from ..ros.dds import loopback_unless_told
     from .demo import Bringup
 
     loopback_unless_told()
@@ -295,7 +300,7 @@ def run_soak(work_dir, n_check=1000, n_plan=100, n_distinct=50, sample_every=100
 def _blade_count():
     """The default blisk's blade count, from its YAML (not the whole geometry, which the nodes load)."""
     from ..geometry.loader import parse_document
-    from .geometry_loader import config_directory
+    from ..nodes.geometry_loader import config_directory
 
     path = config_directory() / "default_blisk.yaml"
     return int(parse_document(path.read_text(), str(path))["blade_count"])

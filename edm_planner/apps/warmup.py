@@ -2,7 +2,7 @@
 
 numba compiles a kernel on its first call in a process and caches it on disk
 (``cache=True``, ``NUMBA_CACHE_DIR``: one directory per version of the
-kernel sources, see ``edm_planner/__init__.py``). A fresh clone or a changed
+kernel sources, see :mod:`edm_planner.environment`). A fresh clone or a changed
 kernel starts empty; processes started together (the nodes of ``make demo``,
 the set designer's workers, the test workers) would then each compile the
 same kernels at once. This
@@ -11,18 +11,34 @@ the same argument types as real work: the default blisk's electrode design
 (spline kernels), a coarse distance field (fill and query kernels), the exact
 re-check of a few poses (branch and bound) and a small removal proof.
 
-``python -m edm_planner.warmup`` (``make setup`` runs it); a second run finds
+``python -m edm_planner.apps.warmup`` (``make setup`` runs it); a second run finds
 everything cached and takes a few seconds. No rclpy.
 """
 
+import argparse
 import logging
+import os
 import pathlib
+import shutil
+import subprocess
 import sys
 import tempfile
 import time
 
 import numpy as np
 import trimesh
+
+from .. import environment
+
+# this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
+environment.configure_process()
+
+from ..geometry.loader import load_geometry  # noqa: E402  (after the set-up above)
+from ..interference.fast import FastChannelField  # noqa: E402
+from ..interference.pose_check import verify_poses  # noqa: E402
+from ..machining.removal import stock_at_points  # noqa: E402
+from ..process.report import silhouette_area  # noqa: E402
+from ..process.volume import AnnulusBlank, Cut, removed_volumes  # noqa: E402
 
 CONFIG = pathlib.Path(__file__).resolve().parent.parent / "config"
 _log = logging.getLogger(__name__)
@@ -42,11 +58,6 @@ def warm_up(part=None, cache_dir=None):
     one ``cache_dir``: part 0 builds the coarse field, part 1 loads it under
     the field's build lock); None does all.
     """
-    from .geometry.loader import load_geometry
-    from .interference.fast import FastChannelField
-    from .interference.pose_check import verify_poses
-    from .machining.removal import stock_at_points
-
     t0 = time.perf_counter()
     g = load_geometry(_config_dir() / "default_blisk.yaml")            # electrode design: spline kernels
     e = g.electrodes[0]
@@ -58,9 +69,6 @@ def warm_up(part=None, cache_dir=None):
         mesh = e.mesh
         stock_at_points(world[:200], [(np.asarray(mesh.vertices), np.asarray(mesh.faces), poses[:2])], 0.1)
     if part in (None, 0):                                               # the process: volume field, silhouettes
-        from .process.report import silhouette_area
-        from .process.volume import AnnulusBlank, Cut, removed_volumes
-
         box = trimesh.creation.box((4.0, 2.0, 3.0))
         pose = np.eye(4)
         pose[:3, 3] = (10.0, 0.0, 110.0)
@@ -91,9 +99,6 @@ def warm_up(part=None, cache_dir=None):
 
 
 def main(argv=None):
-    import argparse
-    import subprocess
-
     parser = argparse.ArgumentParser(description="compile edm_planner's numba kernels into the cache")
     parser.add_argument("--part", type=int, choices=(0, 1))
     parser.add_argument("--cache-dir")
@@ -104,7 +109,7 @@ def main(argv=None):
         return 0
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:                          # two processes, one field between them
-        procs = [subprocess.Popen([sys.executable, "-m", "edm_planner.warmup", "--part", str(p), "--cache-dir", tmp])
+        procs = [subprocess.Popen([sys.executable, "-m", "edm_planner.apps.warmup", "--part", str(p), "--cache-dir", tmp])
                  for p in (0, 1)]
         codes = [p.wait() for p in procs]
     if any(codes):
@@ -124,15 +129,10 @@ def prune_kernel_caches(now=None):
     """Remove the numba cache directories of other kernel sources nothing wrote to for ``KEEP_DAYS``.
 
     Each version of the kernel sources gets its own directory under
-    ``edm_planner.NUMBA_CACHE_ROOT`` (about 90 MB); only the default root is
+    ``edm_planner.environment.NUMBA_CACHE_ROOT`` (about 90 MB); only the default root is
     pruned, never a NUMBA_CACHE_DIR the caller chose. Returns what was removed.
     """
-    import os
-    import shutil
-
-    from . import NUMBA_CACHE_ROOT
-
-    root, current = pathlib.Path(NUMBA_CACHE_ROOT), pathlib.Path(os.environ["NUMBA_CACHE_DIR"])
+    root, current = pathlib.Path(environment.NUMBA_CACHE_ROOT), pathlib.Path(os.environ["NUMBA_CACHE_DIR"])
     if current.parent != root or not root.is_dir():
         return []
     limit = (time.time() if now is None else now) - KEEP_DAYS * 86400

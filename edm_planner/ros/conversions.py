@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import trimesh
-from edm_planner_msgs.msg import ErrorCode, GeometrySummary
+from edm_planner_msgs.msg import AxisPath, AxisPoint, ErrorCode, GeometrySummary
 from geometry_msgs.msg import Point, Pose
 from scipy.spatial.transform import Rotation
 from shape_msgs.msg import Mesh, MeshTriangle
@@ -17,6 +17,7 @@ from visualization_msgs.msg import Marker
 
 from ..errors import EdmError
 from ..errors import ErrorCode as CoreErrorCode
+from ..machining.cycle import ClearZone, Leg, MachiningCycle, ProcessReach
 
 
 def error_code(code):
@@ -132,8 +133,6 @@ def design_override(msg, base):
 
 def cycle_fields(cycle, set_id=""):
     """The ChannelPlan fields of a MachiningCycle (None: empty cycle, NaN margin), as a dict of keyword args."""
-    from edm_planner_msgs.msg import AxisPath, AxisPoint
-
     if cycle is None:
         return {"cycle_margin": float("nan"), "set_id": set_id or ""}
     samples = cycle.samples
@@ -160,8 +159,6 @@ def cycle_to_msg(msg, cycle, set_id=""):
 
 def msg_to_cycle(msg):
     """The MachiningCycle of a ChannelPlan message (legs rebuilt from cycle_path and leg_last), or None."""
-    from ..machining.cycle import ClearZone, Leg, MachiningCycle, ProcessReach
-
     if not msg.leg_phases:
         return None
     names = tuple(msg.cycle_path.axis_names)

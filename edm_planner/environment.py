@@ -1,0 +1,71 @@
+"""The process set-up every entry point does first: where numba keeps its compiled kernels, how OpenMP waits.
+
+Importing :mod:`edm_planner` (or any module of it) changes nothing in the process. The entry points (the
+``edm-plan`` command, the nodes, the programs of :mod:`edm_planner.apps`, the benchmarks, the test suite's
+conftest) call :func:`configure_process` before they import the core, because numba reads its cache
+directory when a kernel module is imported. A script that uses the core as a library may call it too; without
+it numba caches next to the sources (``__pycache__``), keyed by each kernel's own file only. No rclpy.
+"""
+
+import hashlib
+import os
+import sys
+
+#: the user's cache: distance fields (keyed by geometry id) and, under ``numba/``, compiled kernels
+CACHE_ROOT = os.path.join(os.path.expanduser("~"), ".cache", "edm_planner")
+#: where our compiled numba kernels are kept, one subdirectory per version of the kernel sources
+NUMBA_CACHE_ROOT = os.path.join(CACHE_ROOT, "numba")
+#: the package's source directory, whose kernels :func:`kernel_sources_digest` covers
+PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
+
+
+def kernel_sources_digest(package=PACKAGE_DIR):
+    """A digest of every module of the package that mentions numba (about 2 ms).
+
+    numba's cache checks a kernel against its own file's time stamp only, not
+    against the files its compiled code was built from (the intrinsics in
+    ``interference/cell_simd.py``, kernels of other modules it calls): after
+    an edit there, the cached code would be stale. One cache directory per
+    content of all kernel sources rules that out.
+    """
+    digest = hashlib.sha256()
+    for folder, subfolders, files in sorted(os.walk(package)):
+        subfolders.sort()
+        for name in sorted(f for f in files if f.endswith(".py")):
+            with open(os.path.join(folder, name), "rb") as source:
+                text = source.read()
+            if b"numba" in text:
+                digest.update(name.encode() + b"\0" + text)
+    return digest.hexdigest()[:16]
+
+
+def configure_process(environ=None):
+    """Set up this process (and the children it starts) for the core; idempotent.
+
+    * ``NUMBA_CACHE_DIR``: numba keeps the compiled kernels (``cache=True``) in a directory that survives runs
+      and is shared by every process (nodes, the CLI, tests), one per version of the kernel sources
+      (:func:`kernel_sources_digest`), so each kernel compiles once per machine and source version. A
+      ``NUMBA_CACHE_DIR`` given by the caller wins.
+    * ``OMP_WAIT_POLICY=PASSIVE`` unless given: numba's parallel kernels run on OpenMP, whose idle threads spin
+      by default; with several processes at once (the nodes, the set designer's workers) spinning threads take
+      the cores from the ones that work. Read when the OpenMP runtime starts (the first parallel kernel call).
+
+    Call it before any kernel module is imported; if numba was imported already, its configuration is reloaded.
+
+    Parameters
+    ----------
+    environ : mutable mapping, optional
+        The environment to set (``os.environ``; another mapping is only written, for tests).
+
+    Returns
+    -------
+    str
+        The numba cache directory in use.
+    """
+    env = os.environ if environ is None else environ
+    if "NUMBA_CACHE_DIR" not in env:
+        env["NUMBA_CACHE_DIR"] = os.path.join(NUMBA_CACHE_ROOT, kernel_sources_digest())
+    env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    if environ is None and "numba" in sys.modules:      # imported before: it read its configuration already
+        sys.modules["numba"].core.config.reload_config()
+    return env["NUMBA_CACHE_DIR"]

@@ -1,0 +1,13 @@
+"""The ROS 2 shell's shared parts (rclpy): what every node and every program that drives the nodes uses.
+
+* :mod:`.dds` -- Fast DDS on loopback UDP instead of shared memory where LOCALHOST discovery is asked for
+  (:func:`.dds.use_loopback_udp`, called by every entry point before ``rclpy.init``);
+* :mod:`.runtime` -- spinning a node with a deadline-aware executor (``spin_node``), turning every exception
+  of a service callback into an error code and a message (``answer``), the plan store and machine file
+  parameters;
+* :mod:`.conversions` -- messages <-> numpy and the core's types, in one place;
+* :mod:`.action_client` -- an action client that closes rclpy's goal/result race.
+
+The nodes themselves are in :mod:`edm_planner.nodes`, the programs that drive them in :mod:`edm_planner.apps`.
+Importing this package does nothing else.
+"""
