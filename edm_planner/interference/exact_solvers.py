@@ -20,9 +20,7 @@ import numba
 import numpy as np
 
 from ..geometry.spline_kernels import new_work, project, project_edge, uv_at
-from .field_params import (
-    _COARSE, _FAR_START, _HR, _HT, _HX, _JUMP, _NCR, _NCT, _NCX, _NEWTON_TOL, _NR, _NX, _PITCH, _R0,
-    _SCALE, _T0, _TC, _TWO_PI, _X0)
+from .field_params import _FAR_START, _NEWTON_TOL, _TWO_PI, named_exact
 
 
 @numba.njit(cache=True)
@@ -232,14 +230,14 @@ def _nearest_start(face, x, rho, samples, scale, box, start, items):
 
 
 @numba.njit(cache=True)
-def _exact_blade(face, x, rho, th, fp, ip, slow, work):
+def _exact_blade(face, x, rho, th, params, shape, tables, work):
     """Exact signed distance of (x, rho, th) (channel-0 angle) to a wall: the slow path."""
-    d, _, _ = _exact_blade_uv(face, x, rho, th, fp, ip, slow, work)
+    d, _, _ = _exact_blade_uv(face, x, rho, th, params, shape, tables, work)
     return d
 
 
 @numba.njit(cache=True)
-def _wall_angle(face, x, rho, th, fp, ip, slow, work):
+def _wall_angle(face, x, rho, th, params, shape, tables, work):
     """The face's footprint test and angle at (x, rho), for the sign rule (``_behind``) of ``_exact_blade_uv``.
 
     Returns
@@ -250,18 +248,18 @@ def _wall_angle(face, x, rho, th, fp, ip, slow, work):
         The face's angle there [rad] (0 outside the footprint).
     """
     if face == 0:
-        cp, tu, tv = slow[0], slow[1], slow[2]
+        cp, tu, tv = tables.cp_s, tables.tu_s, tables.tv_s
     else:
-        cp, tu, tv = slow[3], slow[4], slow[5]
-    line_theta, line_inside = slow[9], slow[10]
-    nx, nr = ip[_NX], ip[_NR]
-    pitch = fp[_PITCH]
+        cp, tu, tv = tables.cp_p, tables.tu_p, tables.tv_p
+    line_theta, line_inside = tables.line_theta, tables.line_inside
+    nx, nr = shape.nx, shape.nr
+    pitch = params.pitch
     th_w = th - pitch if face == 1 else th
     # the face's angle at (x, rho) for the sign rule; the grid covers the footprint
     in_face = False
     th_face = 0.0
-    lx = (x - fp[_X0]) / fp[_HX]
-    lr = (rho - fp[_R0]) / fp[_HR]
+    lx = (x - params.x0) / params.hx
+    lr = (rho - params.r0) / params.hr
     if 0.0 <= lx <= nx - 1 and 0.0 <= lr <= nr - 1:
         # where the 4 x 4 surrounding (x, r) lines lie in the footprint and the point is off the
         # face's angle by more than 4 times the bilinear error estimate (from the lines' second
@@ -296,23 +294,24 @@ def _wall_angle(face, x, rho, th, fp, ip, slow, work):
             # Newton from the start ``BladeFace.uv_at`` takes (the nearest of its 64 x 64 samples in
             # scaled (x, r)): near the leading and trailing edges the map (u, v) -> (x, r) can fold,
             # and then the footprint test depends on the start
-            xr_uv = slow[18]
-            j_best = _nearest_start(face, x, rho, slow[17], slow[19], slow[20], slow[21], slow[22])
+            xr_uv = tables.start_uv
+            j_best = _nearest_start(face, x, rho, tables.start_samples, tables.start_scale, tables.start_box,
+                                    tables.start_first, tables.start_items)
             _, _, in_face, th_face = uv_at(cp, tu, tv, x, rho, xr_uv[face, j_best, 0], xr_uv[face, j_best, 1],
                                             work)
     return in_face, th_face
 
 
 @numba.njit(cache=True)
-def _blade_behind(face, x, rho, th, fp, ip, slow, work):
+def _blade_behind(face, x, rho, th, params, shape, tables, work):
     """The sign of ``_exact_blade`` alone (no closest point): is (x, rho, th) (channel-0 angle) behind the wall?"""
-    in_face, th_face = _wall_angle(face, x, rho, th, fp, ip, slow, work)
-    pitch = fp[_PITCH]
+    in_face, th_face = _wall_angle(face, x, rho, th, params, shape, tables, work)
+    pitch = params.pitch
     return _behind(face, th - pitch if face == 1 else th, th_face, in_face, pitch)
 
 
 @numba.njit(cache=True)
-def _exact_blade_uv(face, x, rho, th, fp, ip, slow, work):
+def _exact_blade_uv(face, x, rho, th, params, shape, tables, work):
     """Exact signed distance of (x, rho, th) (channel-0 angle) to a wall and its foot's (u, v).
 
     The sign rule as in the fill; the closest point from the nearest coarse
@@ -321,23 +320,24 @@ def _exact_blade_uv(face, x, rho, th, fp, ip, slow, work):
     edge of the face.
     """
     if face == 0:
-        cp, tu, tv = slow[0], slow[1], slow[2]
+        cp, tu, tv = tables.cp_s, tables.tu_s, tables.tv_s
     else:
-        cp, tu, tv = slow[3], slow[4], slow[5]
-    coarse_uv, kind = slow[7], slow[8]
-    C = ip[_COARSE]
-    pitch = fp[_PITCH]
+        cp, tu, tv = tables.cp_p, tables.tu_p, tables.tv_p
+    coarse_uv, kind = tables.coarse_uv, tables.kind
+    C = shape.coarse
+    pitch = params.pitch
     th_w = th - pitch if face == 1 else th
-    in_face, th_face = _wall_angle(face, x, rho, th, fp, ip, slow, work)
-    gx = min(max((x - fp[_X0]) / (C * fp[_HX]), 0.0), ip[_NCX] - 1.0)
-    gr = min(max((rho - fp[_R0]) / (C * fp[_HR]), 0.0), ip[_NCR] - 1.0)
-    gt = min(max((th - fp[_T0]) / (C * fp[_HT]), 0.0), ip[_NCT] - 1.0)
-    cx, cr, ct = min(int(gx), ip[_NCX] - 2), min(int(gr), ip[_NCR] - 2), min(int(gt), ip[_NCT] - 2)
+    in_face, th_face = _wall_angle(face, x, rho, th, params, shape, tables, work)
+    gx = min(max((x - params.x0) / (C * params.hx), 0.0), shape.ncx - 1.0)
+    gr = min(max((rho - params.r0) / (C * params.hr), 0.0), shape.ncr - 1.0)
+    gt = min(max((th - params.t0) / (C * params.ht), 0.0), shape.nct - 1.0)
+    cx, cr, ct = min(int(gx), shape.ncx - 2), min(int(gr), shape.ncr - 2), min(int(gt), shape.nct - 2)
     kx, kr, kt = int(round(gx)), int(round(gr)), int(round(gt))
     px, py, pz = x, rho * math.cos(th_w), rho * math.sin(th_w)
     amb = kind[cx, cr, ct, face] == 2
+    scale_u, scale_v = (params.scale_su, params.scale_sv) if face == 0 else (params.scale_pu, params.scale_pv)
     u, v, f, _ = _solve_node(cp, tu, tv, px, py, pz, np.nan, np.nan, coarse_uv, face, cx, cr, ct, kx, kr, kt, amb,
-                             fp[_SCALE + 2 * face], fp[_SCALE + 2 * face + 1], fp[_JUMP], work)
+                             scale_u, scale_v, params.jump, work)
     if _on_edge(u, v) != 0:
         u2, v2, f2 = project(cp, tu, tv, px, py, pz, min(max(u, 0.03), 0.97), min(max(v, 0.03), 0.97), work,
                               _NEWTON_TOL, 80)
@@ -356,54 +356,56 @@ def _exact_blade_uv(face, x, rho, th, fp, ip, slow, work):
 
 
 @numba.njit(cache=True)
-def _exact_surface(s, x, rho, th, fp, ip, slow, work):
+def _exact_surface(s, x, rho, th, params, shape, tables, work):
     """Exact signed distance to surface s (0 suction, 1 pressure, 2 hub, 3 shroud); th in channel 0."""
     if s < 2:
-        return _exact_blade(s, x, rho, th, fp, ip, slow, work)
+        return _exact_blade(s, x, rho, th, params, shape, tables, work)
     if s == 2:
-        return _profile_signed(slow[11], slow[12], slow[13], 1.0, x, rho)
-    return _profile_signed(slow[14], slow[15], slow[16], -1.0, x, rho)
+        return _profile_signed(tables.hub_xb, tables.hub_c, tables.hub_b, 1.0, x, rho)
+    return _profile_signed(tables.shroud_xb, tables.shroud_c, tables.shroud_b, -1.0, x, rho)
 
 
 @numba.njit(cache=True)
-def _channel_coordinates(x, y, z, channel_angle, fp):
+def _channel_coordinates(x, y, z, channel_angle, params):
     """(rho, th) of a point in W: th its channel-0 angle about the grid's middle, as every exact query takes it."""
     rho = math.sqrt(y * y + z * z)
     th = math.atan2(z, y) - channel_angle
-    th -= _TWO_PI * math.floor((th - fp[_TC] + math.pi) / _TWO_PI)
+    th -= _TWO_PI * math.floor((th - params.tc + math.pi) / _TWO_PI)
     return rho, th
 
 
 @numba.njit(cache=True)
-def _exact_at(s, x, y, z, channel_angle, fp, ip, slow, work):
+def _exact_at(s, x, y, z, channel_angle, params, shape, tables, work):
     """Exact signed distance of a point in W to surface s of the channel at ``channel_angle`` (``_exact_surface``)."""
-    rho, th = _channel_coordinates(x, y, z, channel_angle, fp)
-    return _exact_surface(s, x, rho, th, fp, ip, slow, work)
+    rho, th = _channel_coordinates(x, y, z, channel_angle, params)
+    return _exact_surface(s, x, rho, th, params, shape, tables, work)
 
 
 @numba.njit(cache=True)
-def _behind_at(face, x, y, z, channel_angle, fp, ip, slow, work):
+def _behind_at(face, x, y, z, channel_angle, params, shape, tables, work):
     """Whether a point in W lies behind wall ``face`` (0 suction, 1 pressure): the sign of ``_exact_at`` alone."""
-    rho, th = _channel_coordinates(x, y, z, channel_angle, fp)
-    return _blade_behind(face, x, rho, th, fp, ip, slow, work)
+    rho, th = _channel_coordinates(x, y, z, channel_angle, params)
+    return _blade_behind(face, x, rho, th, params, shape, tables, work)
 
 
 @numba.njit(cache=True)
-def _behind_kernel(points, channel_angle, fp, ip, slow):
+def _behind_kernel(points, channel_angle, params, shape, tables):
     """(n, 2) bool: ``_behind_at`` for both walls."""
+    params, shape, tables = named_exact(params, shape, tables)
     n = points.shape[0]
     out = np.zeros((n, 2), dtype=np.bool_)
     work = new_work()
     for k in range(n):
         for face in range(2):
-            out[k, face] = _behind_at(face, points[k, 0], points[k, 1], points[k, 2], channel_angle, fp, ip, slow,
-                                      work)
+            out[k, face] = _behind_at(face, points[k, 0], points[k, 1], points[k, 2], channel_angle, params, shape,
+                                      tables, work)
     return out
 
 
 @numba.njit(cache=True)
-def _exact_blade_feet(points, channel_angle, fp, ip, slow):
+def _exact_blade_feet(points, channel_angle, params, shape, tables):
     """Exact signed distances to both walls and the feet's (u, v): (n, 2), (n, 2, 2)."""
+    params, shape, tables = named_exact(params, shape, tables)
     n = points.shape[0]
     dist = np.empty((n, 2))
     uv = np.empty((n, 2, 2))
@@ -412,8 +414,8 @@ def _exact_blade_feet(points, channel_angle, fp, ip, slow):
         x, y, z = points[k, 0], points[k, 1], points[k, 2]
         rho = math.sqrt(y * y + z * z)
         th = math.atan2(z, y) - channel_angle
-        th -= _TWO_PI * math.floor((th - fp[_TC] + math.pi) / _TWO_PI)
+        th -= _TWO_PI * math.floor((th - params.tc + math.pi) / _TWO_PI)
         for face in range(2):
-            d, u, v = _exact_blade_uv(face, x, rho, th, fp, ip, slow, work)
+            d, u, v = _exact_blade_uv(face, x, rho, th, params, shape, tables, work)
             dist[k, face], uv[k, face, 0], uv[k, face, 1] = d, u, v
     return dist, uv

@@ -47,112 +47,62 @@ the grid they are conservative lower bounds (the value at the nearest grid
 point minus the distance to it, or the distance to the faces' (x, r)
 bounding box, whichever is larger), never larger than the truth.
 
-This module holds the class (build, cache, queries, error measurement); its
-numba kernels live by concern in :mod:`.field_params` (the parameter
-layout), :mod:`.field_build` (the grid fill), :mod:`.field_query` (per point
-and per pose), :mod:`.exact_solvers` (the exact blade and profile solvers)
-and :mod:`.min_search` (the exact minimum over a pose sequence, for
-:mod:`.plan_check`).
+This module holds the class: a thin layer over modules by concern:
+:mod:`.field_params` (the kernels' named arguments), :mod:`.field_layout`
+(the grids' extents, the splines' arrays), :mod:`.field_build` (the grid
+fill), :mod:`.field_query` (per point and per pose), :mod:`.exact_solvers`
+(the exact blade and profile solvers), :mod:`.min_search` (the exact minimum
+over a pose sequence, for :mod:`.pose_check`), :mod:`.field_error` (the
+error measurement), :mod:`.field_cache` (the disk cache) and
+:mod:`.field_lock` (one build per machine).
 
 Units: mm, rad. Frame W: X the blisk axis, theta = atan2(z, y).
 """
 
-import contextlib
-import fcntl
 import functools
-import hashlib
 import importlib
-import json
 import logging
 import math
-import os
-import pathlib
-import re
-import tempfile
 import time
 
-import numba
 import numpy as np
-from scipy.spatial import cKDTree
 
-from . import SURFACES
-from ..geometry.frames import cylindrical_to_cartesian, rotation_about_x
-from ..geometry.spline_kernels import spline_surface_eval  # noqa: F401  (a public name of this module)
-from .exact_points import ExactChannelDistance
-from .field_params import (
-    ACCURATE_WITHIN, CACHE_VERSION, _CA, _COARSE, _FR0, _FR1, _FX0, _FX1, _HHR, _HHX, _HR, _HR0, _HT, _HX,
-    _HX0, _IHHR, _IHHX, _IHR, _IHT, _IHX, _JUMP, _NCR, _NCT, _NCX, _NHR, _NHX, _NIPAR, _NPAR, _NR, _NT, _NX,
-    _PITCH, _R0, _SA, _SCALE, _T0, _TC, _X0)
-from .exact_solvers import _behind_kernel, _exact_blade_feet, _fill_profile_table
-from .field_build import _classify_coarse, _fill_coarse, _fill_fine, _fill_lines, _flag_nodes
-from .npz_map import map_npz
+from ..geometry.frames import rotation_about_x
+from ..geometry.spline_kernels import spline_surface_eval
+from .exact_solvers import _behind_kernel, _exact_blade_feet
+from .field_build import build_tables
+from .field_cache import ARRAYS, cache_path, fingerprint, read_cache, write_cache
+from .field_error import error_sample_points, measure_error, reference_clearances
+from .field_layout import face_arrays, grid_layout, profile_arrays, uv_starts
+from .field_lock import build_lock
+from .field_params import ACCURATE_WITHIN, CACHE_VERSION, ExactTables, FieldParams, GridShape, KernelArgs
 from .field_query import _exact_pose_kernel, _points_kernel, _pose_kernel, _posed_kernel
+from .wall_features import WallFeatures
 
 _log = logging.getLogger(__name__)
 
-#: where the kernels that lived in this module before it was split by concern are now
-_KERNEL_MODULES = ("field_params", "exact_solvers", "field_build", "field_query", "min_search")
+#: the public names (the constants and the spline evaluator as before the split; the kernels' argument types)
+__all__ = ["FastChannelField", "ACCURATE_WITHIN", "CACHE_VERSION", "spline_surface_eval", "KernelArgs", "FieldParams",
+           "GridShape", "ExactTables"]
+
+#: where the kernels and helpers that lived in this module before it was split by concern are now
+_MOVED_TO = ("field_params", "exact_solvers", "field_build", "field_query", "min_search", "field_layout",
+             "field_error", "field_cache", "field_lock")
+
+#: helpers renamed on the way (old name -> new name)
+_RENAMED = {"_face_arrays": "face_arrays", "_profile_arrays": "profile_arrays", "_axis": "grid_axis",
+            "_build_lock": "build_lock"}
 
 
 def __getattr__(name):
-    """The kernels' old names stay importable from here (``fast._slow_point``, ``fast._min_search``, ...)."""
+    """The old names stay importable from here (``fast._slow_point``, ``fast._min_search``, ``fast._axis``)."""
     if not name.startswith("__"):
-        for module in _KERNEL_MODULES:
-            kernels = vars(importlib.import_module(f"{__package__}.{module}"))
-            if name in kernels:
-                return kernels[name]
+        name = _RENAMED.get(name, name)
+        for module in _MOVED_TO:
+            names = vars(importlib.import_module(f"{__package__}.{module}"))
+            if name in names:
+                return names[name]
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def _face_arrays(face):
-    """Control net by coordinate (3, nv, nu) and the knot vectors of a face's spline."""
-    s = face.surface
-    return (np.ascontiguousarray(np.moveaxis(s.control_points, 2, 0), dtype=np.float64),
-            np.ascontiguousarray(s.knots_u, dtype=np.float64),
-            np.ascontiguousarray(s.knots_v, dtype=np.float64))
-
-
-def _profile_arrays(profile):
-    """Breakpoints (n,), cubic coefficients (4, n-1) and (max|r'|, max|r''|) of a profile.
-
-    The PCHIP pieces of ``RevolutionProfile`` (the interpolant ``ProfileDistance`` uses).
-    """
-    interp = profile._interp
-    xb = np.ascontiguousarray(interp.x, dtype=np.float64)
-    t = np.linspace(xb[0], xb[-1], 20 * len(xb) + 200)
-    bounds = np.array([np.abs(interp.derivative()(t)).max() * 1.1 + 1e-9,
-                       np.abs(interp.derivative(2)(t)).max() * 1.1 + 1e-9])
-    return xb, np.ascontiguousarray(interp.c, dtype=np.float64), bounds
-
-
-@contextlib.contextmanager
-def _build_lock(path):
-    """Exclusive lock of a field's cache file while it is built (``<cache>.lock``, flock); none without a cache.
-
-    The lock is the kernel's (released when its holder exits, also by kill -9),
-    so a crashed builder never blocks the next one. Where the lock file cannot
-    be made (a read-only cache directory) the field is built unlocked.
-    """
-    if path is None:
-        yield
-        return
-    lock = path.with_name(path.name + ".lock")
-    try:
-        lock.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
-    except OSError as exc:
-        _log.warning("fast field: no build lock %s (%s); building without it", lock, exc)
-        yield
-        return
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            _log.info("fast field: another process is building %s; waiting for it", path.name)
-            fcntl.flock(fd, fcntl.LOCK_EX)
-        yield
-    finally:
-        os.close(fd)                     # closing releases the lock
 
 
 def _poses_and_points(poses, points, where):
@@ -162,12 +112,6 @@ def _poses_and_points(poses, points, where):
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
         raise ValueError(f"{where}: points must be (M, 3) with M >= 1, got {pts.shape}")
     return poses, pts
-
-
-def _axis(lo, hi, step, multiple):
-    """Node count (a multiple of ``multiple`` intervals plus one) and spacing <= step covering [lo, hi]."""
-    m = max(multiple, int(math.ceil((hi - lo) / step / multiple - 1e-9)) * multiple)
-    return m + 1, (hi - lo) / m
 
 
 class FastChannelField:
@@ -238,11 +182,11 @@ class FastChannelField:
         self.band = float(band)
         self.curvature_tol = float(curvature_tol)
         self.edge_curvature_tol = float(edge_curvature_tol)
-        self._cp_s, self._tu_s, self._tv_s = _face_arrays(blisk.suction_face)
-        self._cp_p, self._tu_p, self._tv_p = _face_arrays(blisk.pressure_face)
-        self._hub_xb, self._hub_c, self._hub_b = _profile_arrays(blisk.hub)
-        self._sh_xb, self._sh_c, self._sh_b = _profile_arrays(blisk.shroud)
-        self._fingerprint = self._geometry_fingerprint()
+        self._splines = face_arrays(blisk.suction_face) + face_arrays(blisk.pressure_face)
+        self._hub = profile_arrays(blisk.hub)
+        self._shroud = profile_arrays(blisk.shroud)
+        self._fingerprint = fingerprint(self._splines + self._hub + self._shroud, blisk.pitch,
+                                        [self.spacing, self.band, self.curvature_tol, self.edge_curvature_tol])
         self.build_seconds = 0.0
         path = self._cache_path(cache_dir, cache_key)
         if path is not None and self._load(path):
@@ -250,7 +194,7 @@ class FastChannelField:
             return
         # one build per field and machine: processes that need the same field at once (the planner and
         # the checker starting together, the set designer's workers) wait for the one building it
-        with _build_lock(path):
+        with build_lock(path):
             if path is not None and self._load(path):
                 _log.info("fast field: loaded %s (built by another process meanwhile)", path)
                 return
@@ -264,231 +208,63 @@ class FastChannelField:
                 self._save(path)
 
     # -- building ------------------------------------------------------------
-    def _geometry_fingerprint(self):
-        h = hashlib.sha256()
-        for a in (self._cp_s, self._tu_s, self._tv_s, self._cp_p, self._tu_p, self._tv_p,
-                  self._hub_xb, self._hub_c, self._hub_b, self._sh_xb, self._sh_c, self._sh_b):
-            h.update(np.ascontiguousarray(a).tobytes())
-        h.update(np.float64(self.blisk.pitch).tobytes())
-        h.update(json.dumps([CACHE_VERSION, self.spacing, self.band, self.curvature_tol,
-                             self.edge_curvature_tol]).encode())
-        return h.hexdigest()
-
     def _layout(self):
-        """Grid extents: the float and integer parameter vectors of the kernels."""
-        b = self.blisk
-        h = self.spacing
-        coarse = 4
-        x0, x1 = b.axial_range
-        xs = np.linspace(x0 - 4.0, x1 + 4.0, 800)
-        r_lo = float(b.hub.radius_at(xs).min()) - 1.0
-        r_hi = float(b.shroud.radius_at(xs).max()) + 1.0
-        uu, vv = np.meshgrid(np.linspace(0, 1, 201), np.linspace(0, 1, 101))
-        th_s = b.suction_face.surface.evaluate(uu, vv)
-        th_p = b.pressure_face.surface.evaluate(uu, vv)
-        fx = np.concatenate([th_s[..., 0].ravel(), th_p[..., 0].ravel()])
-        fr = np.concatenate([np.hypot(th_s[..., 1], th_s[..., 2]).ravel(),
-                             np.hypot(th_p[..., 1], th_p[..., 2]).ravel()])
-        t_lo = float(np.arctan2(th_s[..., 2], th_s[..., 1]).min()) - 3.0 / r_lo
-        t_hi = float(np.arctan2(th_p[..., 2], th_p[..., 1]).max()) + b.pitch + 3.0 / r_lo
-        r_mid = 0.5 * (r_lo + r_hi)
-        nx, hx = _axis(x0 - 4.0, x1 + 4.0, h, coarse)
-        nr, hr = _axis(r_lo, r_hi, h, coarse)
-        nt, ht = _axis(t_lo, t_hi, h / r_mid, coarse)
-        # hub/shroud table: longer in x, so that an electrode leaving the channel axially (its far end
-        # an electrode length past the blades) stays in it
-        ext = max(10.0, 1.25 * (x1 - x0))
-        nhx, hhx = _axis(x0 - 4.0 - ext, x1 + 4.0 + ext, h, 1)
-        nhr, hhr = _axis(r_lo, r_hi, h, 1)
-        fp = np.zeros(_NPAR)
-        fp[[_X0, _HX, _R0, _HR, _T0, _HT]] = x0 - 4.0, hx, r_lo, hr, t_lo, ht
-        fp[_PITCH] = b.pitch
-        fp[_TC] = 0.5 * (t_lo + t_hi)
-        fp[[_HX0, _HHX, _HR0, _HHR]] = x0 - 4.0 - ext, hhx, r_lo, hhr
-        fp[[_FX0, _FX1, _FR0, _FR1]] = fx.min() - 0.01, fx.max() + 0.01, fr.min() - 0.01, fr.max() + 0.01
-        fp[[_IHX, _IHR, _IHT, _IHHX, _IHHR]] = 1.0 / hx, 1.0 / hr, 1.0 / ht, 1.0 / hhx, 1.0 / hhr
-        # a coarse cell's diagonal: how far apart two of its corners' closest points may lie
-        fp[_JUMP] = coarse * math.sqrt(hx ** 2 + hr ** 2 + r_hi ** 2 * ht ** 2)
-        for k, face in enumerate((b.suction_face, b.pressure_face)):
-            s_u, s_v = face.surface.derivatives(*np.meshgrid(np.linspace(0, 1, 21), np.linspace(0, 1, 21)))
-            fp[_SCALE + 2 * k] = np.linalg.norm(s_u, axis=-1).mean()
-            fp[_SCALE + 2 * k + 1] = np.linalg.norm(s_v, axis=-1).mean()
-        ip = np.zeros(_NIPAR, dtype=np.int64)
-        ip[[_NX, _NR, _NT, _COARSE]] = nx, nr, nt, coarse
-        ip[[_NCX, _NCR, _NCT]] = (nx - 1) // coarse + 1, (nr - 1) // coarse + 1, (nt - 1) // coarse + 1
-        ip[[_NHX, _NHR]] = nhx, nhr
-        return fp, ip
+        """The grids' extents: (FieldParams, GridShape) (:func:`.field_layout.grid_layout`)."""
+        return grid_layout(self.blisk, self.spacing)
 
-    def _xr_starts(self, n=64):
-        """The starts of ``BladeFace.uv_at``: n x n face samples in (x, r) scaled by their extent.
-
-        The footprint test must start where the exact method starts (see
-        ``_exact_blade``); this repeats ``BladeFace``'s sampling.
-
-        Returns
-        -------
-        samples : (2, n*n, 2) float
-            Scaled (x, r) of the suction and the pressure face's samples.
-        uv : (2, n*n, 2) float
-        scale : (2, 2) float
-        box, start, items
-            Bins of the samples for ``_nearest_start``.
-        """
-        samples = np.empty((2, n * n, 2))
-        uv = np.empty((2, n * n, 2))
-        scale = np.empty((2, 2))
-        nb = n // 2                                   # bins of the nearest-sample search
-        box = np.empty((2, 4))
-        start = np.empty((2, nb * nb + 1), dtype=np.int64)
-        items = np.empty((2, n * n), dtype=np.int64)
-        uu, vv = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
-        for k, face in enumerate((self.blisk.suction_face, self.blisk.pressure_face)):
-            pts = face.surface.evaluate(uu, vv).reshape(-1, 3)
-            xr = np.column_stack([pts[:, 0], np.hypot(pts[:, 1], pts[:, 2])])
-            scale[k] = np.ptp(xr, axis=0) + 1e-9
-            samples[k] = xr / scale[k]
-            uv[k] = np.column_stack([uu.ravel(), vv.ravel()])
-            lo = samples[k].min(axis=0)
-            size = (samples[k].max(axis=0) - lo) / nb + 1e-12
-            box[k] = lo[0], lo[1], size[0], size[1]
-            cell = np.minimum(((samples[k] - lo) / size).astype(np.int64), nb - 1)
-            bins = cell[:, 0] * nb + cell[:, 1]
-            items[k] = np.argsort(bins, kind="stable")
-            start[k] = np.searchsorted(bins[items[k]], np.arange(nb * nb + 1))
-        return samples, uv, scale, box, start, items
-
-    @staticmethod
-    def _face_seeds(face, points, near_cut):
-        """Global starts for Newton: the nearest sample of the face.
-
-        A 32 x 32 sampling first; points whose distance to it is below
-        ``near_cut`` plus that sampling's gap get the nearest of a 96 x 96
-        sampling instead.
-
-        Returns
-        -------
-        uv : (m, 2) float
-        far : (m,) bool
-            Certainly farther than ``near_cut`` from the face.
-        """
-        def sampling(n):
-            uu, vv = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
-            s = face.surface.evaluate(uu, vv)
-            diag = np.maximum(np.linalg.norm(s[1:, 1:] - s[:-1, :-1], axis=-1),
-                              np.linalg.norm(s[1:, :-1] - s[:-1, 1:], axis=-1))
-            # no face point lies farther than ``gap`` from a sample
-            return np.column_stack([uu.ravel(), vv.ravel()]), s.reshape(-1, 3), 0.6 * float(diag.max())
-
-        uv_c, s_c, gap_c = sampling(32)
-        workers = numba.get_num_threads()
-        dist, idx = cKDTree(s_c).query(points, workers=workers)
-        uv = uv_c[idx]
-        near = dist < near_cut + gap_c
-        uv_f, s_f, _ = sampling(96)
-        _, idx_f = cKDTree(s_f).query(points[near], workers=workers)
-        uv[near] = uv_f[idx_f]
-        return uv, ~near
+    def _xr_starts(self):
+        """The exact solver's start samples (:func:`.field_layout.uv_starts`)."""
+        return uv_starts(self.blisk)
 
     def _build(self):
-        b = self.blisk
-        times = {}
-        t = time.perf_counter()
-        fp, ip = self._layout()
-        nx, nr, nt, C = (int(v) for v in ip[[_NX, _NR, _NT, _COARSE]])
-        ncx, ncr, nct = (int(v) for v in ip[[_NCX, _NCR, _NCT]])
-        xg = fp[_X0] + fp[_HX] * np.arange(nx)
-        rg = fp[_R0] + fp[_HR] * np.arange(nr)
-        tg = fp[_T0] + fp[_HT] * np.arange(nt)
-        faces = (b.suction_face, b.pressure_face)
-        kern = (self._cp_s, self._tu_s, self._tv_s, self._cp_p, self._tu_p, self._tv_p)
+        params, shape = self._layout()
+        tables, self.stats = build_tables(self.blisk, params, shape, self._splines, self._hub, self._shroud,
+                                          self.band, self.curvature_tol, self.edge_curvature_tol)
+        self._set_arrays(dict({"_" + name: value for name, value in tables.items()},
+                              _fp=np.array(params, dtype=np.float64), _ip=np.array(shape, dtype=np.int64)))
 
-        # 1. per (x, r): both faces' angles and the footprint (the sign rule)
-        X, R = np.meshgrid(xg, rg, indexing="ij")
-        seeds = np.empty((nx * nr, 2, 2))
-        xr_s, xr_uv, xr_scale = self._xr_starts()[:3]
-        for k in range(2):
-            _, idx = cKDTree(xr_s[k]).query(np.column_stack([X.ravel() / xr_scale[k, 0], R.ravel() / xr_scale[k, 1]]),
-                                            workers=numba.get_num_threads())
-            seeds[:, k] = xr_uv[k, idx]
-        line_uv, line_theta, line_inside = _fill_lines(*kern, X.ravel(), R.ravel(), seeds)
-        line_uv = line_uv.reshape(nx, nr, 2, 2)
-        line_theta = line_theta.reshape(nx, nr, 2)
-        line_inside = line_inside.reshape(nx, nr, 2)
-        times["lines_s"] = time.perf_counter() - t
-
-        # 2. coarse nodes: global closest points from a dense sampling, then Newton
-        t = time.perf_counter()
-        cX, cR, cT = np.meshgrid(xg[::C], rg[::C], tg[::C], indexing="ij")
-        cseeds = np.empty((ncx, ncr, nct, 2, 2))
-        cfar = np.empty((ncx, ncr, nct, 2), dtype=bool)
-        diag = fp[_JUMP]
-        for k, face in enumerate(faces):
-            pts = cylindrical_to_cartesian(cX, cR, cT - k * b.pitch).reshape(-1, 3)
-            # corners of far cells next to solved ones lie within band + diag: those get the fine starts
-            uv, far = self._face_seeds(face, pts, self.band + diag + 0.1)
-            cseeds[..., k, :] = uv.reshape(ncx, ncr, nct, 2)
-            cfar[..., k] = far.reshape(ncx, ncr, nct)
-        coarse_values, coarse_uv, coarse_xyz = _fill_coarse(*kern, fp, ip, line_theta, line_inside, cseeds, cfar)
-        kind = _classify_coarse(coarse_values, coarse_xyz, coarse_uv, fp, ip, self.band, 1.5 * diag, 0.35)
-        times["coarse_s"] = time.perf_counter() - t
-
-        # 3. fine nodes: solved near the faces, interpolated far from them
-        t = time.perf_counter()
-        grid = np.empty((nx, nr, nt, 2), dtype=np.float32)
-        edge = np.empty((nx, nr, nt, 2), dtype=np.uint8)
-        scales = fp[_SCALE:_SCALE + 4].copy()
-        solved, rechecked = _fill_fine(*kern, fp, ip, line_theta, line_inside, coarse_values, coarse_uv, kind,
-                                       scales, diag, grid, edge)
-        times["fine_s"] = time.perf_counter() - t
-        t = time.perf_counter()
-        flagged = _flag_nodes(grid, edge, fp, ip, self.curvature_tol, self.edge_curvature_tol,
-                              ACCURATE_WITHIN + 0.25, 0.05)
-        del edge
-        times["flag_s"] = time.perf_counter() - t
-
-        # 4. hub and shroud: the exact profile distance on an (x, r) table
-        t = time.perf_counter()
-        nhx, nhr = int(ip[_NHX]), int(ip[_NHR])
-        hs = np.empty((nhx, nhr, 2), dtype=np.float32)
-        table = (fp[_HX0], fp[_HHX], nhx, fp[_HR0], fp[_HHR], nhr)
-        hs[..., 0] = _fill_profile_table(self._hub_xb, self._hub_c, self._hub_b, 1.0, *table)
-        hs[..., 1] = _fill_profile_table(self._sh_xb, self._sh_c, self._sh_b, -1.0, *table)
-        times["hub_shroud_s"] = time.perf_counter() - t
-
-        self._fp, self._ip = fp, ip
-        self._grid = grid
-        self._hs = hs
-        self._line_uv = np.ascontiguousarray(line_uv)
-        self._coarse_uv = np.ascontiguousarray(coarse_uv)
-        self._kind = kind
-        self._line_theta = np.ascontiguousarray(line_theta)
-        self._line_inside = np.ascontiguousarray(line_inside)
-        nodes = 2.0 * nx * nr * nt
-        self.stats = {
-            "grid_shape": [nx, nr, nt],
-            "grid_spacing_mm": [float(fp[_HX]), float(fp[_HR]), float(fp[_HT] * (fp[_R0] + 0.5 * (nr - 1) * fp[_HR]))],
-            "grid_megabytes": round(grid.nbytes / 2**20, 1),
-            "solved_node_fraction": round(solved / nodes, 4),
-            "ambiguous_cell_fraction": round(float((kind == 2).mean()), 4),
-            "restarted_node_fraction": round(rechecked / nodes, 4),
-            "exact_fallback_node_fraction": round(flagged / nodes, 4),
-            "hub_shroud_table_shape": [nhx, nhr],
-            **{k: round(v, 3) for k, v in times.items()},
-        }
+    def _set_arrays(self, arrays):
+        """Take the arrays of :data:`.field_cache.ARRAYS` (built or mapped) and the named parameters from them."""
+        for name in ARRAYS:
+            setattr(self, name, arrays[name])
+        self._params = FieldParams(*(float(v) for v in self._fp))
+        self._shape = GridShape(*(int(v) for v in self._ip))
+        self._tables = None                   # the exact solvers' tables, made on first use
+        self._plain = {}                      # channel -> _plain_args
 
     # -- queries ---------------------------------------------------------------
+    def kernel_args(self, channel=0):
+        """What numba callers pass on for channel k: a :class:`.field_params.KernelArgs`.
+
+        ``(channel_angle, grid, walls, fast, fast_shape, params, shape, tables)``:
+        ``_fast_point(x, y, z, grid, walls, fast, fast_shape)`` answers from the tables,
+        ``_exact_at(s, x, y, z, channel_angle, params, shape, tables, work)`` and
+        ``_behind_at(face, ...)`` solve exactly (``work = new_work()``).
+        """
+        if self._tables is None:
+            self._tables = ExactTables(*self._splines, self._line_uv, self._coarse_uv, self._kind, self._line_theta,
+                                       self._line_inside, *self._hub, *self._shroud, *self._xr_starts())
+        params = self._params
+        angle = params.tc + channel * self.blisk.pitch
+        fast = params._replace(ca=math.cos(angle), sa=math.sin(angle))
+        return KernelArgs(float(channel) * self.blisk.pitch, self._grid.reshape(-1), self._hs.reshape(-1), fast,
+                          self._shape, params, self._shape, self._tables)
+
+    def _plain_args(self, channel):
+        """``kernel_args`` with plain tuples for the named ones, cached per channel: what the methods pass.
+
+        numba types a plain tuple in C and a named tuple in Python (about 20 us
+        more per call); the entry kernels name them (``field_params.named_args``).
+        """
+        plain = self._plain.get(channel)
+        if plain is None:
+            args = self.kernel_args(channel)
+            plain = self._plain[channel] = args[:3] + tuple(tuple(named) for named in args[3:])
+        return plain
+
     def _kernel_args(self, channel=0):
-        """The arrays the numba kernels take: (flat grid, flat hub/shroud table, fp tuple, ip tuple, fp, ip, slow)."""
-        if getattr(self, "_xr_cache", None) is None:
-            self._xr_cache = self._xr_starts()
-        slow = (self._cp_s, self._tu_s, self._tv_s, self._cp_p, self._tu_p, self._tv_p, self._line_uv,
-                self._coarse_uv, self._kind, self._line_theta, self._line_inside, self._hub_xb, self._hub_c,
-                self._hub_b, self._sh_xb, self._sh_c, self._sh_b) + self._xr_cache
-        fpt = self._fp.copy()
-        angle = self._fp[_TC] + channel * self.blisk.pitch
-        fpt[_CA], fpt[_SA] = math.cos(angle), math.sin(angle)
-        return (self._grid.reshape(-1), self._hs.reshape(-1), tuple(float(v) for v in fpt),
-                tuple(int(v) for v in self._ip), self._fp, self._ip, slow)
+        """``kernel_args`` without the channel angle: ``(grid, walls, fast, fast_shape, params, shape, tables)``."""
+        return self.kernel_args(channel)[1:]
 
     def clearances(self, points, channel=0):
         """Signed distances of points in W to channel k's four surfaces.
@@ -512,7 +288,8 @@ class FastChannelField:
         p = np.ascontiguousarray(np.atleast_2d(np.asanyarray(points, dtype=np.float64)))
         if p.ndim != 2 or p.shape[1] != 3:
             raise ValueError(f"points must be (n, 3), got {p.shape}")
-        return _points_kernel(p, float(channel) * self.blisk.pitch, mode, *self._kernel_args(channel))
+        args = self._plain_args(channel)
+        return _points_kernel(p, args[0], mode, *args[1:])
 
     def posed_clearances(self, poses, points, channel=0):
         """(P, M, 4): the four clearances of every point under every pose [mm].
@@ -521,7 +298,7 @@ class FastChannelField:
         :meth:`pose_clearances`), in one numba loop on all threads.
         """
         poses, pts = _poses_and_points(poses, points, "posed_clearances")
-        return _posed_kernel(poses, pts, float(channel) * self.blisk.pitch, *self._kernel_args(channel))
+        return _posed_kernel(poses, pts, *self._plain_args(channel))
 
     @functools.cached_property
     def wall_features(self):
@@ -530,7 +307,6 @@ class FastChannelField:
         What a vertex check cannot see: the certificate measures them against the electrode's triangles.
         Built on first use (~0.05 s), not cached on disk.
         """
-        from .wall_features import WallFeatures
         return WallFeatures.from_blisk(self.blisk)
 
     def pose_clearances(self, poses, points, channel=0):
@@ -555,7 +331,7 @@ class FastChannelField:
             Index of the electrode point that attains it.
         """
         poses, pts = _poses_and_points(poses, points, "pose_clearances")
-        return _pose_kernel(poses, pts, float(channel) * self.blisk.pitch, *self._kernel_args(channel))
+        return _pose_kernel(poses, pts, *self._plain_args(channel))
 
     def exact_pose_clearances(self, poses, points, channel=0):
         """Per pose and surface: the exact minimum signed distance over the electrode points.
@@ -588,8 +364,8 @@ class FastChannelField:
             raise ValueError(f"exact_pose_clearances: points must be (M, 3) with M >= 1, got {pts.shape}")
         far = float(getattr(self, "far_error_bound", np.inf))
         far = max(far, self.error_bound) if np.isfinite(far) else np.inf     # unknown: prune nothing
-        return _exact_pose_kernel(poses, pts, float(channel) * self.blisk.pitch, float(self.error_bound), far,
-                                  *self._kernel_args(channel))
+        args = self._plain_args(channel)
+        return _exact_pose_kernel(poses, pts, args[0], float(self.error_bound), far, *args[1:])
 
     def exact_blade_feet(self, points, channel=0):
         """Exact signed distances to the two walls (as ``exact_blade_distances``) and their closest points.
@@ -602,8 +378,8 @@ class FastChannelField:
             The closest points on the walls, in W [mm].
         """
         p = np.ascontiguousarray(np.atleast_2d(np.asanyarray(points, dtype=np.float64)))
-        args = self._kernel_args(channel)
-        dist, uv = _exact_blade_feet(p, float(channel) * self.blisk.pitch, *args[4:])
+        args = self._plain_args(channel)
+        dist, uv = _exact_blade_feet(p, args[0], *args[5:])           # channel angle, params, shape, tables
         feet = np.empty((len(p), 2, 3))
         for face, cp in enumerate((self.blisk.suction_face, self.blisk.pressure_face)):
             s = cp.surface
@@ -643,56 +419,25 @@ class FastChannelField:
         (x0, x1), (r0, r1), (t0, t1) = self.grid_bounds
         rho = np.hypot(p[:, 1], p[:, 2])
         th = np.arctan2(p[:, 2], p[:, 1]) - channel * self.blisk.pitch
-        th -= 2 * np.pi * np.floor((th - self._fp[_TC] + np.pi) / (2 * np.pi))
+        th -= 2 * np.pi * np.floor((th - self._params.tc + np.pi) / (2 * np.pi))
         return (p[:, 0] >= x0) & (p[:, 0] <= x1) & (rho >= r0) & (rho <= r1) & (th >= t0) & (th <= t1)
 
     @property
     def grid_bounds(self):
         """((x_min, x_max), (r_min, r_max), (theta_min, theta_max)) of the blade grid [mm, rad], channel 0."""
-        fp, ip = self._fp, self._ip
-        return tuple((fp[o], fp[o] + (ip[n] - 1) * fp[h])
-                     for o, h, n in ((_X0, _HX, _NX), (_R0, _HR, _NR), (_T0, _HT, _NT)))
+        p, n = self._params, self._shape
+        return ((p.x0, p.x0 + (n.nx - 1) * p.hx), (p.r0, p.r0 + (n.nr - 1) * p.hr), (p.t0, p.t0 + (n.nt - 1) * p.ht))
 
     # -- error measurement -------------------------------------------------------
     def error_sample_points(self, n=1500, seed=0):
-        """Random points within 2 mm of channel 0's surfaces, for the error measurement.
-
-        Per surface ``n`` points at -0.5 ... 2 mm from it (nominal; on both
-        sides: a shallow penetration must be seen as well), spread over the
-        channel, and ``n`` points within 2 mm of the leading and trailing
-        edges of blades 0 and 1 (all around the edge).
+        """Random points within 2 mm of channel 0's surfaces (:func:`.field_error.error_sample_points`).
 
         Returns
         -------
         (m, 3) float
             Points in W [mm].
         """
-        b = self.blisk
-        rng = np.random.default_rng(seed)
-        x0, x1 = b.full_span_axial_range
-        out = []
-        x = rng.uniform(x0, x1, 4 * n)
-        hub, shr = b.hub.radius_at(x), b.shroud.radius_at(x)
-        r = hub + rng.uniform(0.02, 0.98, 4 * n) * (shr - hub)
-        th_s, th_p, inside = b.wall_angles(x, r)
-        delta = rng.uniform(-0.5, 2.0, 4 * n)
-        frac = rng.uniform(0, 1, 4 * n)
-        th_any = th_s + frac * (th_p - th_s)
-        sl = [slice(k * n, (k + 1) * n) for k in range(4)]
-        out.append(cylindrical_to_cartesian(x[sl[0]], r[sl[0]], th_s[sl[0]] + delta[sl[0]] / r[sl[0]]))
-        out.append(cylindrical_to_cartesian(x[sl[1]], r[sl[1]], th_p[sl[1]] - delta[sl[1]] / r[sl[1]]))
-        out.append(cylindrical_to_cartesian(x[sl[2]], hub[sl[2]] + delta[sl[2]], th_any[sl[2]]))
-        out.append(cylindrical_to_cartesian(x[sl[3]], shr[sl[3]] - delta[sl[3]], th_any[sl[3]]))
-        # around the edges: balls of 2 mm about the faces' leading and trailing edge lines
-        v = rng.uniform(0.03, 0.97, n)
-        u = rng.integers(0, 2, n).astype(float)
-        edge = b.suction_face.surface.evaluate(u, v)
-        ex, er, et = edge[:, 0], np.hypot(edge[:, 1], edge[:, 2]), np.arctan2(edge[:, 2], edge[:, 1])
-        et = et + b.pitch * rng.integers(0, 2, n)          # blade 0 or blade 1
-        d = rng.normal(size=(n, 3))
-        d *= (rng.uniform(0, 1, n) ** (1 / 3) * 2.0 / np.linalg.norm(d, axis=1))[:, None]
-        out.append(cylindrical_to_cartesian(ex, er, et) + d)
-        return np.concatenate(out)
+        return error_sample_points(self.blisk, n, seed)
 
     def exact_blade_distances(self, points, channel=0):
         """Exact signed distances to the two blade walls by the numba solver (no grid).
@@ -726,16 +471,8 @@ class FastChannelField:
             True where the exact signed distance to that wall is negative.
         """
         p = np.ascontiguousarray(np.atleast_2d(np.asanyarray(points, dtype=np.float64)))
-        return _behind_kernel(p, float(channel) * self.blisk.pitch, *self._kernel_args(channel)[4:])
-
-    def kernel_args(self, channel=0):
-        """What numba callers pass on for channel k: ``(channel_angle, flat, hs, fpt, ipt, fp, ip, slow)``.
-
-        ``_fast_point(x, y, z, flat, hs, fpt, ipt)`` answers from the tables,
-        ``_exact_at(s, x, y, z, channel_angle, fp, ip, slow, work)`` and
-        ``_behind_at(face, ...)`` solve exactly (``work = new_work()``).
-        """
-        return (float(channel) * self.blisk.pitch,) + self._kernel_args(channel)
+        args = self._plain_args(channel)
+        return _behind_kernel(p, args[0], *args[5:])                   # channel angle, params, shape, tables
 
     def exact_profile_distances(self, points):
         """Exact signed distances to the hub and the shroud by the numba profile solver (no table).
@@ -748,14 +485,7 @@ class FastChannelField:
         return self._points(points, 0, 1)[:, 2:]
 
     def reference_clearances(self, points, channel=0, exact=None):
-        """The best known signed distances: ``ExactChannelDistance``, refined by the numba solvers.
-
-        Every closest-point solver returns the distance to an actual surface
-        point, an upper bound of the true distance; where a numba solver finds
-        a closer point than the exact method (``BladeFace.closest_points`` can
-        stop short of the minimum when the closest point lies on an edge of
-        the face, ``ProfileDistance.signed`` when it lies on the kink at an end
-        of the profile), its distance is taken, with the exact method's sign.
+        """The best known signed distances (:func:`.field_error.reference_clearances`).
 
         Returns
         -------
@@ -764,106 +494,34 @@ class FastChannelField:
         exact : (n, 4) float
             ``ExactChannelDistance.clearances`` unchanged.
         """
-        exact = exact or ExactChannelDistance(self.blisk)
-        ref = exact.clearances(points, channel)
-        mine = self._points(points, channel, 1)
-        closer = (np.abs(mine) < np.abs(ref)) & (np.sign(mine) == np.sign(ref))
-        return np.where(closer, mine, ref), ref
+        return reference_clearances(self, points, channel, exact)
 
     def _measure_error(self, n):
-        # near the surfaces, and (for the far-field figure) anywhere in the grid
-        (x0, x1), (r0, r1), (t0, t1) = self.grid_bounds
-        rng = np.random.default_rng(1)
-        anywhere = cylindrical_to_cartesian(rng.uniform(x0, x1, n), rng.uniform(r0, r1, n), rng.uniform(t0, t1, n))
-        pts = np.concatenate([self.error_sample_points(n), anywhere])
-        ref, raw = self.reference_clearances(pts)
-        got = self.clearances(pts)
-        err = np.abs(got - ref)
-        # outside the grid the values are lower bounds by design, not approximations
-        inside = self.inside_grid(pts)[:, None]
-        far = (np.abs(ref) > ACCURATE_WITHIN) & inside
-        self.far_error_bound = 1.5 * float(err[far].max(initial=0.0))
-        near = (np.abs(ref) <= ACCURATE_WITHIN) & inside
-        self.measured_max_error = {name: float(err[near[:, k], k].max(initial=0.0))
-                                   for k, name in enumerate(SURFACES)}
-        self.error_sample_count = {name: int(near[:, k].sum()) for k, name in enumerate(SURFACES)}
-        # how far BladeFace.closest_points stopped short of the minimum on these points (for the record)
-        self.exact_method_excess = float(np.abs(raw - ref)[near].max(initial=0.0))
-        # float32 storage: half an ulp of the largest stored value within the band
-        quantum = float(np.spacing(np.float32(ACCURATE_WITHIN + 1.0))) / 2
-        self.error_bound = 1.5 * max(self.measured_max_error.values()) + quantum
+        for name, value in measure_error(self, n).items():
+            setattr(self, name, value)
 
     # -- cache -------------------------------------------------------------------
-    def _cache_path(self, cache_dir, cache_key):
-        if cache_dir is None or not cache_key:
-            return None
-        key = str(cache_key)
-        if not re.fullmatch(r"[A-Za-z0-9_.\-]{1,100}", key):
-            key = hashlib.sha256(key.encode()).hexdigest()
-        return pathlib.Path(cache_dir) / f"{key}.fast_field.s{self.spacing:g}.npz"
+    _ARRAYS = ARRAYS
 
-    _ARRAYS = ("_fp", "_ip", "_grid", "_hs", "_line_uv", "_coarse_uv", "_kind", "_line_theta", "_line_inside")
+    def _cache_path(self, cache_dir, cache_key):
+        return cache_path(cache_dir, cache_key, self.spacing)
 
     def _save(self, path):
-        meta = {"version": CACHE_VERSION, "fingerprint": self._fingerprint,
+        meta = {"fingerprint": self._fingerprint,
                 "error_bound": self.error_bound, "measured_max_error": self.measured_max_error,
                 "exact_method_excess": self.exact_method_excess, "far_error_bound": self.far_error_bound,
                 "error_sample_count": self.error_sample_count, "stats": self.stats,
                 "build_seconds": self.build_seconds}
-        tmp = None
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, meta=np.array(json.dumps(meta)),
-                         **{name.lstrip("_"): getattr(self, name) for name in self._ARRAYS})
-            os.replace(tmp, path)          # atomic: a reader sees the old file or the new one
-            tmp = None
-        except OSError as exc:
-            _log.warning("fast field: cannot write the cache %s: %s", path, exc)
-        finally:
-            if tmp is not None and os.path.exists(tmp):
-                os.unlink(tmp)
+        write_cache(path, {name: getattr(self, name) for name in ARRAYS}, meta)
 
     def _load(self, path):
         """Load the arrays from ``path``; False (and a rebuild) if missing, stale or corrupt."""
-        if not path.is_file():
+        arrays, meta = read_cache(path, self._fingerprint, self._layout)
+        if arrays is None:
             return False
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                meta = json.loads(str(data["meta"]))
-            if meta.get("version") != CACHE_VERSION or meta.get("fingerprint") != self._fingerprint:
-                _log.info("fast field: cache %s is for another geometry or version; rebuilding", path)
-                return False
-            # mapped, not read: pages shared by every process that loads the field, read when touched
-            mapped = map_npz(path, [name.lstrip("_") for name in self._ARRAYS])
-            arrays = {name: mapped[name.lstrip("_")] for name in self._ARRAYS}
-            fp, ip = arrays["_fp"], arrays["_ip"]
-            if fp.shape != (_NPAR,) or ip.shape != (_NIPAR,) or ip.dtype != np.int64:
-                raise ValueError("parameter vectors")
-            nx, nr, nt = (int(v) for v in ip[[_NX, _NR, _NT]])
-            ncx, ncr, nct = (int(v) for v in ip[[_NCX, _NCR, _NCT]])
-            expect = {"_grid": ((nx, nr, nt, 2), np.float32), "_hs": ((int(ip[_NHX]), int(ip[_NHR]), 2), np.float32),
-                      "_line_uv": ((nx, nr, 2, 2), np.float64), "_coarse_uv": ((ncx, ncr, nct, 2, 2), np.float64),
-                      "_kind": ((ncx - 1, ncr - 1, nct - 1, 2), np.uint8),
-                      "_line_theta": ((nx, nr, 2), np.float64), "_line_inside": ((nx, nr, 2), np.bool_)}
-            for name, (shape, dtype) in expect.items():
-                if arrays[name].shape != shape or arrays[name].dtype != dtype:
-                    raise ValueError(f"{name}: {arrays[name].shape} {arrays[name].dtype}, expected {shape}")
-            ref_fp, ref_ip = self._layout()
-            if not (np.array_equal(ip, ref_ip) and np.allclose(fp, ref_fp, rtol=0, atol=1e-9)):
-                raise ValueError("grid layout differs")
-            error_bound = float(meta["error_bound"])
-            measured = {k: float(meta["measured_max_error"][k]) for k in SURFACES}
-            if not (np.isfinite(error_bound) and error_bound >= 0):
-                raise ValueError("error bound")
-        except Exception as exc:     # noqa: BLE001 -- any unreadable cache means: rebuild
-            _log.warning("fast field: cache %s unusable (%s); rebuilding", path, exc)
-            return False
-        for name, value in arrays.items():
-            setattr(self, name, np.ascontiguousarray(value))
-        self.error_bound = error_bound
-        self.measured_max_error = measured
+        self._set_arrays(arrays)
+        self.error_bound = meta["error_bound"]
+        self.measured_max_error = meta["measured_max_error"]
         self.error_sample_count = meta.get("error_sample_count", {})
         self.exact_method_excess = float(meta.get("exact_method_excess", float("nan")))
         self.far_error_bound = float(meta.get("far_error_bound", float("nan")))

@@ -5,19 +5,23 @@ points along lines of theta (``_fill_lines``), a coarse grid of global
 closest points (``_fill_coarse``, classified by ``_classify_coarse``), the
 fine grid near the faces started from them (``_fill_fine``), and the nodes
 where trilinear interpolation is not accurate enough marked for the exact
-solver (``_flag_nodes``). :class:`.fast.FastChannelField` drives the passes
-and measures the error bound. Units: mm, rad.
+solver (``_flag_nodes``). :func:`build_tables` drives the passes and fills
+the hub/shroud table (for :class:`.fast.FastChannelField`, which measures the
+error bound, :mod:`.field_error`). Units: mm, rad.
 """
 
 import math
+import time
 
 import numba
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..geometry.spline_kernels import new_work, project_edge, surface_eval, uv_at
-from .field_params import (
-    _COARSE, _HR, _HT, _HX, _NCR, _NCT, _NCX, _NEWTON_TOL, _NR, _NT, _NX, _PITCH, _R0, _T0, _X0)
-from .exact_solvers import _behind, _on_edge, _solve_node
+from ..geometry.frames import cylindrical_to_cartesian
+from .exact_solvers import _behind, _fill_profile_table, _on_edge, _solve_node
+from .field_layout import uv_starts
+from .field_params import ACCURATE_WITHIN, _NEWTON_TOL
 
 
 @numba.njit(cache=True)
@@ -56,7 +60,7 @@ def _fill_lines(cp_s, tu_s, tv_s, cp_p, tu_p, tv_p, xs, rs, seeds):
 
 
 @numba.njit(cache=True, parallel=True)
-def _fill_coarse(cp_s, tu_s, tv_s, cp_p, tu_p, tv_p, fp, ip, line_theta, line_inside, seeds, far):
+def _fill_coarse(cp_s, tu_s, tv_s, cp_p, tu_p, tv_p, params, shape, line_theta, line_inside, seeds, far):
     """Values and closest points at the coarse nodes (every ``COARSE``-th fine node).
 
     ``seeds`` (ncx, ncr, nct, 2, 2) are the nearest samples of a sampling of
@@ -69,21 +73,21 @@ def _fill_coarse(cp_s, tu_s, tv_s, cp_p, tu_p, tv_p, fp, ip, line_theta, line_in
     feet_uv : (ncx, ncr, nct, 2, 2) float64
     feet_xyz : (ncx, ncr, nct, 2, 3) float64
     """
-    C = ip[_COARSE]
-    ncx, ncr, nct = ip[_NCX], ip[_NCR], ip[_NCT]
+    C = shape.coarse
+    ncx, ncr, nct = shape.ncx, shape.ncr, shape.nct
     values = np.empty((ncx, ncr, nct, 2))
     feet_uv = np.empty((ncx, ncr, nct, 2, 2))
     feet_xyz = np.empty((ncx, ncr, nct, 2, 3))
-    pitch = fp[_PITCH]
+    pitch = params.pitch
     for cx in numba.prange(ncx):
         work = new_work()
         ev = work[2]
-        x = fp[_X0] + cx * C * fp[_HX]
+        x = params.x0 + cx * C * params.hx
         for cr in range(ncr):
-            r = fp[_R0] + cr * C * fp[_HR]
+            r = params.r0 + cr * C * params.hr
             for ct in range(nct):
                 for face in range(2):
-                    th = fp[_T0] + ct * C * fp[_HT] - face * pitch
+                    th = params.t0 + ct * C * params.ht - face * pitch
                     u0, v0 = seeds[cx, cr, ct, face, 0], seeds[cx, cr, ct, face, 1]
                     behind = _behind(face, th, line_theta[cx * C, cr * C, face], line_inside[cx * C, cr * C, face],
                                      pitch)
@@ -105,7 +109,7 @@ def _fill_coarse(cp_s, tu_s, tv_s, cp_p, tu_p, tv_p, fp, ip, line_theta, line_in
 
 
 @numba.njit(cache=True)
-def _classify_coarse(values, feet_xyz, feet_uv, fp, ip, band, spread, turn):
+def _classify_coarse(values, feet_xyz, feet_uv, params, shape, band, spread, turn):
     """Per coarse cell and face: 0 far (interpolate), 1 near (solve), 2 near and ambiguous.
 
     A cell is far when all 8 corners are more than ``band`` mm from the face and
@@ -116,19 +120,19 @@ def _classify_coarse(values, feet_xyz, feet_uv, fp, ip, band, spread, turn):
     ``turn`` rad, or some lie on the face's boundary and others inside it
     (the fine nodes then start from every distinct corner's closest point).
     """
-    C = ip[_COARSE]
-    ncx, ncr, nct = ip[_NCX], ip[_NCR], ip[_NCT]
+    C = shape.coarse
+    ncx, ncr, nct = shape.ncx, shape.ncr, shape.nct
     kind = np.zeros((ncx - 1, ncr - 1, nct - 1, 2), dtype=np.uint8)
-    hx, hr, ht = C * fp[_HX], C * fp[_HR], C * fp[_HT]
+    hx, hr, ht = C * params.hx, C * params.hr, C * params.ht
     # unit directions from the closest point to the node (zero on the face)
     dirs = np.zeros((ncx, ncr, nct, 2, 3))
     for cx in range(ncx):
-        x = fp[_X0] + cx * hx
+        x = params.x0 + cx * hx
         for cr in range(ncr):
-            r = fp[_R0] + cr * hr
+            r = params.r0 + cr * hr
             for ct in range(nct):
                 for face in range(2):
-                    th = fp[_T0] + ct * ht - face * fp[_PITCH]
+                    th = params.t0 + ct * ht - face * params.pitch
                     dx = x - feet_xyz[cx, cr, ct, face, 0]
                     dy = r * math.cos(th) - feet_xyz[cx, cr, ct, face, 1]
                     dz = r * math.sin(th) - feet_xyz[cx, cr, ct, face, 2]
@@ -140,7 +144,7 @@ def _classify_coarse(values, feet_xyz, feet_uv, fp, ip, band, spread, turn):
     cos_turn = math.cos(turn)
     for cx in range(ncx - 1):
         for cr in range(ncr - 1):
-            rmax = fp[_R0] + (cr + 1) * hr
+            rmax = params.r0 + (cr + 1) * hr
             chord_t = 2.0 * rmax * math.sin(0.5 * ht)
             for ct in range(nct - 1):
                 for face in range(2):
@@ -185,7 +189,7 @@ def _classify_coarse(values, feet_xyz, feet_uv, fp, ip, band, spread, turn):
 
 
 @numba.njit(cache=True, parallel=True)
-def _fill_fine(cp_s, tu_s, tv_s, cp_p, tu_p, tv_p, fp, ip, line_theta, line_inside,
+def _fill_fine(cp_s, tu_s, tv_s, cp_p, tu_p, tv_p, params, shape, line_theta, line_inside,
                coarse_values, coarse_uv, kind, scales, jump, grid, edge):
     """Fill ``grid`` (nx, nr, nt, 2) float32: solved near the faces, interpolated far away.
 
@@ -201,21 +205,21 @@ def _fill_fine(cp_s, tu_s, tv_s, cp_p, tu_p, tv_p, fp, ip, line_theta, line_insi
     solved, rechecked : int
         Nodes solved, and nodes solved from more than one start.
     """
-    nx, nr, nt, C = ip[_NX], ip[_NR], ip[_NT], ip[_COARSE]
-    ncx, ncr, nct = ip[_NCX], ip[_NCR], ip[_NCT]
-    pitch = fp[_PITCH]
+    nx, nr, nt, C = shape.nx, shape.nr, shape.nt, shape.coarse
+    ncx, ncr, nct = shape.ncx, shape.ncr, shape.nct
+    pitch = params.pitch
     solved_x = np.zeros(nx, dtype=np.int64)
     rechecked_x = np.zeros(nx, dtype=np.int64)
     for ix in numba.prange(nx):
         work = new_work()
         solved = 0
         rechecked = 0
-        x = fp[_X0] + ix * fp[_HX]
+        x = params.x0 + ix * params.hx
         cx = min(ix // C, ncx - 2)
         wx = (ix - cx * C) / C
         kx = min((ix + C // 2) // C, ncx - 1)
         for ir in range(nr):
-            r = fp[_R0] + ir * fp[_HR]
+            r = params.r0 + ir * params.hr
             cr = min(ir // C, ncr - 2)
             wr = (ir - cr * C) / C
             kr = min((ir + C // 2) // C, ncr - 1)
@@ -236,7 +240,7 @@ def _fill_fine(cp_s, tu_s, tv_s, cp_p, tu_p, tv_p, fp, ip, line_theta, line_insi
                         edge[ix, ir, it, face] = 0
                         pu, pv = np.nan, np.nan
                         continue
-                    th = fp[_T0] + it * fp[_HT]
+                    th = params.t0 + it * params.ht
                     if face == 1:
                         th -= pitch
                     su, sv = pu, pv
@@ -273,7 +277,7 @@ def _jump(a, b, length, tol, far, far_tol):
 
 
 @numba.njit(cache=True)
-def _flag_nodes(grid, edge, fp, ip, curvature_tol, edge_curvature_tol, accurate_within, jump_tol):
+def _flag_nodes(grid, edge, params, shape, curvature_tol, edge_curvature_tol, accurate_within, jump_tol):
     """Mark nodes whose cells trilinear interpolation does not represent (NaN in place).
 
     A node is marked for a face where the value jumps to a neighbour (more
@@ -288,9 +292,9 @@ def _flag_nodes(grid, edge, fp, ip, curvature_tol, edge_curvature_tol, accurate_
     edge, and the error can reach a quarter). Returns the number of marked
     (node, face) pairs.
     """
-    nx, nr, nt = ip[_NX], ip[_NR], ip[_NT]
+    nx, nr, nt = shape.nx, shape.nr, shape.nt
     mark = np.zeros((nx, nr, nt, 2), dtype=np.uint8)
-    hx, hr = fp[_HX], fp[_HR]
+    hx, hr = params.hx, params.hr
     far = accurate_within + 0.5
     count_x = np.zeros(nx, dtype=np.int64)
     for ix in range(nx):
@@ -308,7 +312,7 @@ def _flag_nodes(grid, edge, fp, ip, curvature_tol, edge_curvature_tol, accurate_
                     elif ir > 0 and _jump(g, grid[ix, ir - 1, it, face], hr, jump_tol, far, 0.5):
                         jump = True
                     else:
-                        chord_hi = 2.0 * (fp[_R0] + (ir + 1) * hr) * math.sin(0.5 * fp[_HT])
+                        chord_hi = 2.0 * (params.r0 + (ir + 1) * hr) * math.sin(0.5 * params.ht)
                         if it + 1 < nt and _jump(g, grid[ix, ir, it + 1, face], chord_hi, jump_tol, far, 0.5):
                             jump = True
                         elif it > 0 and _jump(g, grid[ix, ir, it - 1, face], chord_hi, jump_tol, far, 0.5):
@@ -344,3 +348,139 @@ def _flag_nodes(grid, edge, fp, ip, curvature_tol, edge_curvature_tol, accurate_
                         c += 1
         count_x[ix] = c
     return count_x.sum()
+
+
+def face_seeds(face, points, near_cut):
+    """Global starts for Newton: the nearest sample of the face.
+
+    A 32 x 32 sampling first; points whose distance to it is below
+    ``near_cut`` plus that sampling's gap get the nearest of a 96 x 96
+    sampling instead.
+
+    Returns
+    -------
+    uv : (m, 2) float
+    far : (m,) bool
+        Certainly farther than ``near_cut`` from the face.
+    """
+    def sampling(n):
+        uu, vv = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n))
+        s = face.surface.evaluate(uu, vv)
+        diag = np.maximum(np.linalg.norm(s[1:, 1:] - s[:-1, :-1], axis=-1),
+                          np.linalg.norm(s[1:, :-1] - s[:-1, 1:], axis=-1))
+        # no face point lies farther than ``gap`` from a sample
+        return np.column_stack([uu.ravel(), vv.ravel()]), s.reshape(-1, 3), 0.6 * float(diag.max())
+
+    uv_c, s_c, gap_c = sampling(32)
+    workers = numba.get_num_threads()
+    dist, idx = cKDTree(s_c).query(points, workers=workers)
+    uv = uv_c[idx]
+    near = dist < near_cut + gap_c
+    uv_f, s_f, _ = sampling(96)
+    _, idx_f = cKDTree(s_f).query(points[near], workers=workers)
+    uv[near] = uv_f[idx_f]
+    return uv, ~near
+
+
+def build_tables(blisk, params, shape, splines, hub, shroud, band, curvature_tol, edge_curvature_tol):
+    """The field's tables: the blade grid, the hub/shroud table and what the exact solver starts from.
+
+    Parameters
+    ----------
+    blisk : Blisk
+    params : FieldParams
+    shape : GridShape
+        The layout (:func:`.field_layout.grid_layout`).
+    splines : tuple of 6 arrays
+        ``face_arrays`` of the suction and then the pressure face.
+    hub, shroud : tuple of 3 arrays
+        ``profile_arrays`` of the profiles.
+    band, curvature_tol, edge_curvature_tol : float
+        As :class:`.fast.FastChannelField` takes them.
+
+    Returns
+    -------
+    tables : dict
+        ``grid`` (nx, nr, nt, 2) float32, ``hs`` (nhx, nhr, 2) float32,
+        ``line_uv``, ``coarse_uv``, ``kind``, ``line_theta``, ``line_inside``.
+    stats : dict
+        Figures of the build (fractions of solved and flagged nodes, stage times [s]).
+    """
+    b = blisk
+    times = {}
+    t = time.perf_counter()
+    nx, nr, nt, C = shape.nx, shape.nr, shape.nt, shape.coarse
+    ncx, ncr, nct = shape.ncx, shape.ncr, shape.nct
+    xg = params.x0 + params.hx * np.arange(nx)
+    rg = params.r0 + params.hr * np.arange(nr)
+    tg = params.t0 + params.ht * np.arange(nt)
+    faces = (b.suction_face, b.pressure_face)
+
+    # 1. per (x, r): both faces' angles and the footprint (the sign rule)
+    X, R = np.meshgrid(xg, rg, indexing="ij")
+    seeds = np.empty((nx * nr, 2, 2))
+    xr_s, xr_uv, xr_scale = uv_starts(b)[:3]
+    for k in range(2):
+        _, idx = cKDTree(xr_s[k]).query(np.column_stack([X.ravel() / xr_scale[k, 0], R.ravel() / xr_scale[k, 1]]),
+                                        workers=numba.get_num_threads())
+        seeds[:, k] = xr_uv[k, idx]
+    line_uv, line_theta, line_inside = _fill_lines(*splines, X.ravel(), R.ravel(), seeds)
+    line_uv = line_uv.reshape(nx, nr, 2, 2)
+    line_theta = line_theta.reshape(nx, nr, 2)
+    line_inside = line_inside.reshape(nx, nr, 2)
+    times["lines_s"] = time.perf_counter() - t
+
+    # 2. coarse nodes: global closest points from a dense sampling, then Newton
+    t = time.perf_counter()
+    cX, cR, cT = np.meshgrid(xg[::C], rg[::C], tg[::C], indexing="ij")
+    cseeds = np.empty((ncx, ncr, nct, 2, 2))
+    cfar = np.empty((ncx, ncr, nct, 2), dtype=bool)
+    diag = params.jump
+    for k, face in enumerate(faces):
+        pts = cylindrical_to_cartesian(cX, cR, cT - k * b.pitch).reshape(-1, 3)
+        # corners of far cells next to solved ones lie within band + diag: those get the fine starts
+        uv, far = face_seeds(face, pts, band + diag + 0.1)
+        cseeds[..., k, :] = uv.reshape(ncx, ncr, nct, 2)
+        cfar[..., k] = far.reshape(ncx, ncr, nct)
+    coarse_values, coarse_uv, coarse_xyz = _fill_coarse(*splines, params, shape, line_theta, line_inside, cseeds, cfar)
+    kind = _classify_coarse(coarse_values, coarse_xyz, coarse_uv, params, shape, band, 1.5 * diag, 0.35)
+    times["coarse_s"] = time.perf_counter() - t
+
+    # 3. fine nodes: solved near the faces, interpolated far from them
+    t = time.perf_counter()
+    grid = np.empty((nx, nr, nt, 2), dtype=np.float32)
+    edge = np.empty((nx, nr, nt, 2), dtype=np.uint8)
+    scales = np.array([params.scale_su, params.scale_sv, params.scale_pu, params.scale_pv])
+    solved, rechecked = _fill_fine(*splines, params, shape, line_theta, line_inside, coarse_values, coarse_uv, kind,
+                                   scales, diag, grid, edge)
+    times["fine_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    flagged = _flag_nodes(grid, edge, params, shape, curvature_tol, edge_curvature_tol, ACCURATE_WITHIN + 0.25, 0.05)
+    del edge
+    times["flag_s"] = time.perf_counter() - t
+
+    # 4. hub and shroud: the exact profile distance on an (x, r) table
+    t = time.perf_counter()
+    nhx, nhr = shape.nhx, shape.nhr
+    hs = np.empty((nhx, nhr, 2), dtype=np.float32)
+    table = (params.hx0, params.hhx, nhx, params.hr0, params.hhr, nhr)
+    hs[..., 0] = _fill_profile_table(*hub, 1.0, *table)
+    hs[..., 1] = _fill_profile_table(*shroud, -1.0, *table)
+    times["hub_shroud_s"] = time.perf_counter() - t
+
+    nodes = 2.0 * nx * nr * nt
+    stats = {
+        "grid_shape": [nx, nr, nt],
+        "grid_spacing_mm": [params.hx, params.hr, params.ht * (params.r0 + 0.5 * (nr - 1) * params.hr)],
+        "grid_megabytes": round(grid.nbytes / 2**20, 1),
+        "solved_node_fraction": round(solved / nodes, 4),
+        "ambiguous_cell_fraction": round(float((kind == 2).mean()), 4),
+        "restarted_node_fraction": round(rechecked / nodes, 4),
+        "exact_fallback_node_fraction": round(flagged / nodes, 4),
+        "hub_shroud_table_shape": [nhx, nhr],
+        **{k: round(v, 3) for k, v in times.items()},
+    }
+    tables = {"grid": grid, "hs": hs, "line_uv": np.ascontiguousarray(line_uv),
+              "coarse_uv": np.ascontiguousarray(coarse_uv), "kind": kind,
+              "line_theta": np.ascontiguousarray(line_theta), "line_inside": np.ascontiguousarray(line_inside)}
+    return tables, stats

@@ -19,22 +19,24 @@ import numba
 import numpy as np
 
 from ..geometry.spline_kernels import new_work
-from .field_params import (
-    ACCURATE_WITHIN, _ATAN, _CA, _FR0, _FR1, _FX0, _FX1, _HHR, _HHX, _HR, _HR0, _HT, _HX, _HX0, _IHHR,
-    _IHHX, _IHR, _IHT, _IHX, _NHR, _NHX, _NR, _NT, _NX, _R0, _SA, _T0, _TC, _TWO_PI, _X0)
+from .field_params import ACCURATE_WITHIN, _ATAN, _TWO_PI, GridShape, named_args
 from .exact_solvers import _exact_blade, _exact_surface, _profile_signed
 from .cell_simd import cell_values
 from .prefetch import prefetch
 
 
+#: positions of node counts in a ``GridShape`` (``shape[_NX]``), for code that indexes it by position
+_NX, _NR, _NT, _NHX, _NHR = (GridShape._fields.index(name) for name in ("nx", "nr", "nt", "nhx", "nhr"))
+
+
 @numba.njit(cache=True, inline="always")
-def _turned(y, z, fp):
+def _turned(y, z, params):
     """(rho, y', z'): the radius, and (y, z) turned by minus the grid's middle angle in the query's channel."""
-    return math.sqrt(y * y + z * z), y * fp[_CA] + z * fp[_SA], z * fp[_CA] - y * fp[_SA]
+    return math.sqrt(y * y + z * z), y * params.ca + z * params.sa, z * params.ca - y * params.sa
 
 
 @numba.njit(cache=True, inline="always")
-def _grid_coords(x, rho, yr, zr, fp):
+def _grid_coords(x, rho, yr, zr, params):
     """Fractional indices (gx, gr, gt) in the blade grid and (hx, hr) in the hub/shroud table.
 
     The angle is the arctangent of z'/y' (``_ATAN``'s polynomial, valid for
@@ -46,47 +48,47 @@ def _grid_coords(x, rho, yr, zr, fp):
     c = _ATAN
     phi = t * (c[0] + s2 * (c[1] + s2 * (c[2] + s2 * (c[3] + s2 * (c[4] + s2 * (c[5] + s2 * (
         c[6] + s2 * (c[7] + s2 * (c[8] + s2 * (c[9] + s2 * c[10]))))))))))
-    return ((x - fp[_X0]) * fp[_IHX], (rho - fp[_R0]) * fp[_IHR], (phi + (fp[_TC] - fp[_T0])) * fp[_IHT],
-            (x - fp[_HX0]) * fp[_IHHX], (rho - fp[_HR0]) * fp[_IHHR])
+    return ((x - params.x0) * params.ihx, (rho - params.r0) * params.ihr, (phi + (params.tc - params.t0)) * params.iht,
+            (x - params.hx0) * params.ihhx, (rho - params.hr0) * params.ihhr)
 
 
 @numba.njit(cache=True, inline="always")
-def _fast_point(x, y, z, flat, hs, fp, ip):
+def _fast_point(x, y, z, flat, hs, params, shape):
     """The fast path: (suction, pressure, hub, shroud, ok); ok False sends the point to ``_slow_point``.
 
     Trilinear in the blade grid (float32, both walls with shared weights),
     bilinear in the hub/shroud table; outside the blade grid the slow
     path's lower bound from the nearest grid point. Not ok: outside the
-    hub/shroud table, or a cell marked for the exact solver (NaN). ``fp`` holds the cosine and sine
-    of the grid's middle angle turned into the query's channel (``_CA``,
-    ``_SA``).
+    hub/shroud table, or a cell marked for the exact solver (NaN). ``params`` holds the cosine and sine
+    of the grid's middle angle turned into the query's channel (``ca``,
+    ``sa``).
     """
     # the angle about the grid's middle angle (turned into channel k): (y', z') = R(-a) (y, z)
-    rho, yr, zr = _turned(y, z, fp)
+    rho, yr, zr = _turned(y, z, params)
     if not (yr > 0.0 and abs(zr) <= 0.5 * yr):
         return np.nan, np.nan, np.nan, np.nan, False
-    gx, gr, gt, hx, hr = _grid_coords(x, rho, yr, zr, fp)
+    gx, gr, gt, hx, hr = _grid_coords(x, rho, yr, zr, params)
     nan = np.nan
-    if not (0.0 <= hx < ip[_NHX] - 1 and 0.0 <= hr < ip[_NHR] - 1 and gx == gx and gr == gr and gt == gt):
+    if not (0.0 <= hx < shape.nhx - 1 and 0.0 <= hr < shape.nhr - 1 and gx == gx and gr == gr and gt == gt):
         return nan, nan, nan, nan, False
     # outside the blade grid (an electrode on its way in or out, past the blades or turned beyond the
     # grid's angles): the slow path's bound max(value at the nearest grid point q - |p - q|, box
     # distance), from the tables alone
     gap = 0.0
-    if not (0.0 <= gx < ip[_NX] - 1 and 0.0 <= gr < ip[_NR] - 1 and 0.0 <= gt < ip[_NT] - 1):
-        qx = min(max(gx, 0.0), ip[_NX] - 1.0)
-        qr = min(max(gr, 0.0), ip[_NR] - 1.0)
-        qt = min(max(gt, 0.0), ip[_NT] - 1.0)
-        dx = (gx - qx) * fp[_HX]
-        rq = fp[_R0] + qr * fp[_HR]
-        half = 0.5 * (gt - qt) * fp[_HT]                 # half the angle between p and q about the axis
+    if not (0.0 <= gx < shape.nx - 1 and 0.0 <= gr < shape.nr - 1 and 0.0 <= gt < shape.nt - 1):
+        qx = min(max(gx, 0.0), shape.nx - 1.0)
+        qr = min(max(gr, 0.0), shape.nr - 1.0)
+        qt = min(max(gt, 0.0), shape.nt - 1.0)
+        dx = (gx - qx) * params.hx
+        rq = params.r0 + qr * params.hr
+        half = 0.5 * (gt - qt) * params.ht                 # half the angle between p and q about the axis
         sh = math.sin(half)
         gap = math.sqrt(dx * dx + (rho - rq) * (rho - rq) + 4.0 * rho * rq * sh * sh)
         gx, gr, gt = qx, qr, qt
-    ix, ir, it = min(int(gx), ip[_NX] - 2), min(int(gr), ip[_NR] - 2), min(int(gt), ip[_NT] - 2)
+    ix, ir, it = min(int(gx), shape.nx - 2), min(int(gr), shape.nr - 2), min(int(gt), shape.nt - 2)
     jx, jr = int(hx), int(hr)
     # unsigned indices: no negative-index wrap-around code
-    sr, sx, hsr = np.uint64(2 * ip[_NT]), np.uint64(2 * ip[_NT] * ip[_NR]), np.uint64(2 * ip[_NHR])
+    sr, sx, hsr = np.uint64(2 * shape.nt), np.uint64(2 * shape.nt * shape.nr), np.uint64(2 * shape.nhr)
     two = np.uint64(2)
     s, p, h, c = cell_values(flat, np.uint64(ix) * sx + np.uint64(ir) * sr + np.uint64(it) * two, sr, sx,
                              np.float32(gx - ix), np.float32(gr - ir), np.float32(gt - it),
@@ -96,18 +98,18 @@ def _fast_point(x, y, z, flat, hs, fp, ip):
         return nan, nan, nan, nan, False
     sb, pb = float(s), float(p)
     if gap > 0.0:
-        ex = max(fp[_FX0] - x, 0.0, x - fp[_FX1])
-        er = max(fp[_FR0] - rho, 0.0, rho - fp[_FR1])
+        ex = max(params.fx0 - x, 0.0, x - params.fx1)
+        er = max(params.fr0 - rho, 0.0, rho - params.fr1)
         rect = math.sqrt(ex * ex + er * er)
         sb, pb = max(sb - gap, rect), max(pb - gap, rect)
     return sb, pb, float(h), float(c), True
 
 
 @numba.njit(cache=True)
-def _trilinear(flat, ip, gx, gr, gt, face):
+def _trilinear(flat, shape, gx, gr, gt, face):
     """Trilinear value of one wall at fractional grid indices inside the grid (float64)."""
-    nr, nt = ip[_NR], ip[_NT]
-    ix = min(int(gx), ip[_NX] - 2)
+    nr, nt = shape.nr, shape.nt
+    ix = min(int(gx), shape.nx - 2)
     ir = min(int(gr), nr - 2)
     it = min(int(gt), nt - 2)
     wx, wr, wt = gx - ix, gr - ir, gt - it
@@ -120,7 +122,7 @@ def _trilinear(flat, ip, gx, gr, gt, face):
 
 
 @numba.njit(cache=True)
-def _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work):
+def _slow_point(x, y, z, channel_angle, flat, hs, params, shape, tables, work):
     """The general path of a query (any point): returns (suction, pressure, hub, shroud).
 
     Inside the grid: trilinear, or the exact solver in cells marked for it.
@@ -130,36 +132,36 @@ def _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work):
     """
     rho = math.sqrt(y * y + z * z)
     th = math.atan2(z, y) - channel_angle
-    th -= _TWO_PI * math.floor((th - fp[_TC] + math.pi) / _TWO_PI)
-    nx, nr, nt = ip[_NX], ip[_NR], ip[_NT]
-    gx = (x - fp[_X0]) / fp[_HX]
-    gr = (rho - fp[_R0]) / fp[_HR]
-    gt = (th - fp[_T0]) / fp[_HT]
+    th -= _TWO_PI * math.floor((th - params.tc + math.pi) / _TWO_PI)
+    nx, nr, nt = shape.nx, shape.nr, shape.nt
+    gx = (x - params.x0) / params.hx
+    gr = (rho - params.r0) / params.hr
+    gt = (th - params.t0) / params.ht
     outside = not (0.0 <= gx <= nx - 1 and 0.0 <= gr <= nr - 1 and 0.0 <= gt <= nt - 1)
     qx, qr, qt = min(max(gx, 0.0), nx - 1.0), min(max(gr, 0.0), nr - 1.0), min(max(gt, 0.0), nt - 1.0)
-    xq = fp[_X0] + qx * fp[_HX]
-    rq = fp[_R0] + qr * fp[_HR]
-    tq = fp[_T0] + qt * fp[_HT]
-    s = _trilinear(flat, ip, qx, qr, qt, 0)
+    xq = params.x0 + qx * params.hx
+    rq = params.r0 + qr * params.hr
+    tq = params.t0 + qt * params.ht
+    s = _trilinear(flat, shape, qx, qr, qt, 0)
     if s != s:
-        s = _exact_blade(0, xq, rq, tq, fp, ip, slow, work)
-    p = _trilinear(flat, ip, qx, qr, qt, 1)
+        s = _exact_blade(0, xq, rq, tq, params, shape, tables, work)
+    p = _trilinear(flat, shape, qx, qr, qt, 1)
     if p != p:
-        p = _exact_blade(1, xq, rq, tq, fp, ip, slow, work)
+        p = _exact_blade(1, xq, rq, tq, params, shape, tables, work)
     if outside:
         dx = x - xq
         dy = rho * math.cos(th) - rq * math.cos(tq)
         dz = rho * math.sin(th) - rq * math.sin(tq)
         gap = math.sqrt(dx * dx + dy * dy + dz * dz)
         # the faces lie in [FX0, FX1] x [FR0, FR1] of the (x, r) half-plane: a second lower bound
-        ex = max(fp[_FX0] - x, 0.0, x - fp[_FX1])
-        er = max(fp[_FR0] - rho, 0.0, rho - fp[_FR1])
+        ex = max(params.fx0 - x, 0.0, x - params.fx1)
+        er = max(params.fr0 - rho, 0.0, rho - params.fr1)
         rect = math.sqrt(ex * ex + er * er)
         s = max(s - gap, rect)
         p = max(p - gap, rect)
-    hx = (x - fp[_HX0]) / fp[_HHX]
-    hr = (rho - fp[_HR0]) / fp[_HHR]
-    nhx, nhr = ip[_NHX], ip[_NHR]
+    hx = (x - params.hx0) / params.hhx
+    hr = (rho - params.hr0) / params.hhr
+    nhx, nhr = shape.nhx, shape.nhr
     if 0.0 <= hx <= nhx - 1 and 0.0 <= hr <= nhr - 1:
         jx = min(int(hx), nhx - 2)
         jr = min(int(hr), nhr - 2)
@@ -170,13 +172,13 @@ def _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work):
         c_ = ((1 - ax) * ((1 - ar) * hs[i00 + 1] + ar * hs[i01 + 1])
               + ax * ((1 - ar) * hs[i10 + 1] + ar * hs[i11 + 1]))
     else:
-        h = _profile_signed(slow[11], slow[12], slow[13], 1.0, x, rho)
-        c_ = _profile_signed(slow[14], slow[15], slow[16], -1.0, x, rho)
+        h = _profile_signed(tables.hub_xb, tables.hub_c, tables.hub_b, 1.0, x, rho)
+        c_ = _profile_signed(tables.shroud_xb, tables.shroud_c, tables.shroud_b, -1.0, x, rho)
     return s, p, h, c_
 
 
 @numba.njit(cache=True)
-def _points_kernel(points, channel_angle, mode, flat, hs, fpt, ipt, fp, ip, slow):
+def _points_kernel(points, channel_angle, mode, flat, hs, fast, fast_shape, params, shape, tables):
     """(n, 4) per point: the field (mode 0), the exact solvers (mode 1) or fast-path flags (mode 2).
 
     Mode 0: the four clearances as ``FastChannelField.clearances``. Mode 1:
@@ -184,6 +186,7 @@ def _points_kernel(points, channel_angle, mode, flat, hs, fpt, ipt, fp, ip, slow
     table. Mode 2: 1.0 in column 0 where the fast path answers. One kernel
     for the three, so that the slow path is compiled once more only.
     """
+    fast, fast_shape, params, shape, tables = named_args(fast, fast_shape, params, shape, tables)
     n = points.shape[0]
     out = np.zeros((n, 4))
     work = new_work()
@@ -192,18 +195,18 @@ def _points_kernel(points, channel_angle, mode, flat, hs, fpt, ipt, fp, ip, slow
         if mode == 1:
             rho = math.sqrt(y * y + z * z)
             th = math.atan2(z, y) - channel_angle
-            th -= _TWO_PI * math.floor((th - fp[_TC] + math.pi) / _TWO_PI)
-            out[k, 0] = _exact_blade(0, x, rho, th, fp, ip, slow, work)
-            out[k, 1] = _exact_blade(1, x, rho, th, fp, ip, slow, work)
-            out[k, 2] = _profile_signed(slow[11], slow[12], slow[13], 1.0, x, rho)
-            out[k, 3] = _profile_signed(slow[14], slow[15], slow[16], -1.0, x, rho)
+            th -= _TWO_PI * math.floor((th - params.tc + math.pi) / _TWO_PI)
+            out[k, 0] = _exact_blade(0, x, rho, th, params, shape, tables, work)
+            out[k, 1] = _exact_blade(1, x, rho, th, params, shape, tables, work)
+            out[k, 2] = _profile_signed(tables.hub_xb, tables.hub_c, tables.hub_b, 1.0, x, rho)
+            out[k, 3] = _profile_signed(tables.shroud_xb, tables.shroud_c, tables.shroud_b, -1.0, x, rho)
             continue
-        s, p, h, c, ok = _fast_point(x, y, z, flat, hs, fpt, ipt)
+        s, p, h, c, ok = _fast_point(x, y, z, flat, hs, fast, fast_shape)
         if mode == 2:
             out[k, 0] = 1.0 if ok else 0.0
             continue
         if not ok:
-            s, p, h, c = _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work)
+            s, p, h, c = _slow_point(x, y, z, channel_angle, flat, hs, params, shape, tables, work)
         out[k, 0], out[k, 1], out[k, 2], out[k, 3] = s, p, h, c
     return out
 
@@ -244,7 +247,7 @@ def _block_scratch():
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _block_cells(m, pts, k0, n, fpt, ipt, xyz, cell, weight, ok):
+def _block_cells(m, pts, k0, n, fast, fast_shape, xyz, cell, weight, ok):
     """Stage 1 of a block (SIMD): place points k0..k0+n-1 by the pose rows ``m``, find their cells.
 
     The arithmetic of ``_fast_point`` up to its loads, with no branch, so
@@ -258,19 +261,19 @@ def _block_cells(m, pts, k0, n, fpt, ipt, xyz, cell, weight, ok):
     answered again by ``_fast_point`` and ``_slow_point`` in stage 3.
     ``pts`` is (3, M): coordinates in rows.
     """
-    lx, lr, lt = ipt[_NX] - 1.0, ipt[_NR] - 1.0, ipt[_NT] - 1.0
-    lhx, lhr = ipt[_NHX] - 1.0, ipt[_NHR] - 1.0
+    lx, lr, lt = fast_shape.nx - 1.0, fast_shape.nr - 1.0, fast_shape.nt - 1.0
+    lhx, lhr = fast_shape.nhx - 1.0, fast_shape.nhr - 1.0
     # indices in int32 (AVX2 has no packed float64 <-> int64 conversion nor int64 minimum: LLVM scalarised
     # them); the strides as int32 too, so that the products are 32 x 32 -> 64-bit multiplies (pmuldq)
     i32, i64 = np.int32, np.int64
-    mx, mr, mt = i32(ipt[_NX] - 2), i32(ipt[_NR] - 2), i32(ipt[_NT] - 2)
-    sr, sx, hsr = i64(i32(2 * ipt[_NT])), i64(i32(2 * ipt[_NT] * ipt[_NR])), i64(i32(2 * ipt[_NHR]))
+    mx, mr, mt = i32(fast_shape.nx - 2), i32(fast_shape.nr - 2), i32(fast_shape.nt - 2)
+    sr, sx, hsr = i64(i32(2 * fast_shape.nt)), i64(i32(2 * fast_shape.nt * fast_shape.nr)), i64(i32(2 * fast_shape.nhr))
     px, py, pz = pts[0, k0:k0 + n], pts[1, k0:k0 + n], pts[2, k0:k0 + n]
     for i in range(n):
         x, y, z = _posed(m, px[i], py[i], pz[i])
         xyz[0, i], xyz[1, i], xyz[2, i] = x, y, z
-        rho, yr, zr = _turned(y, z, fpt)
-        gx, gr, gt, hx, hr = _grid_coords(x, rho, yr, zr, fpt)      # y' = 0 gives inf/NaN here: not ok
+        rho, yr, zr = _turned(y, z, fast)
+        gx, gr, gt, hx, hr = _grid_coords(x, rho, yr, zr, fast)      # y' = 0 gives inf/NaN here: not ok
         # bitwise & on the comparisons: no short-circuit branches (NaN compares False: not ok)
         good = ((yr > 0.0) & (abs(zr) <= 0.5 * yr) & (gx >= 0.0) & (gx < lx) & (gr >= 0.0) & (gr < lr)
                 & (gt >= 0.0) & (gt < lt) & (hx >= 0.0) & (hx < lhx) & (hr >= 0.0) & (hr < lhr))
@@ -296,7 +299,7 @@ def _prefetch_cell(flat, b0, sr, sx):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _block_values(n, flat, hs, ipt, cell, weight, values):
+def _block_values(n, flat, hs, fast_shape, cell, weight, values):
     """Stage 2 of a block: the loads and the float32 interpolation of ``_fast_point``, bit for bit.
 
     One ``cell_values`` (4-wide SIMD) per point into its row of ``values``.
@@ -304,9 +307,9 @@ def _block_values(n, flat, hs, ipt, cell, weight, values):
     while point i is interpolated (about 7 % more points per second near the
     final pose, where the cells come from L2 or memory).
     """
-    sr = np.uint64(2 * ipt[_NT])
-    sx = np.uint64(2 * ipt[_NT] * ipt[_NR])
-    hsr = np.uint64(2 * ipt[_NHR])
+    sr = np.uint64(2 * fast_shape.nt)
+    sx = np.uint64(2 * fast_shape.nt * fast_shape.nr)
+    hsr = np.uint64(2 * fast_shape.nhr)
     for i in range(min(_AHEAD, n)):
         _prefetch_cell(flat, cell[0, i], sr, sx)
     for i in range(n):
@@ -324,12 +327,12 @@ def _common(i, ok, values):
 
 
 @numba.njit(cache=True, inline="always")
-def _off_point(i, xyz, channel_angle, flat, hs, fpt, ipt, fp, ip, slow, work):
+def _off_point(i, xyz, channel_angle, flat, hs, fast, fast_shape, params, shape, tables, work):
     """Stage 3 for a point off the common case: its four clearances in full (``_fast_point``, ``_slow_point``)."""
     x, y, z = xyz[0, i], xyz[1, i], xyz[2, i]
-    s, p, h, c, good = _fast_point(x, y, z, flat, hs, fpt, ipt)
+    s, p, h, c, good = _fast_point(x, y, z, flat, hs, fast, fast_shape)
     if not good:
-        s, p, h, c = _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work)
+        s, p, h, c = _slow_point(x, y, z, channel_angle, flat, hs, params, shape, tables, work)
     return s, p, h, c
 
 
@@ -344,8 +347,15 @@ def _lower(v, k, best, arg):
     return best, arg
 
 
+@numba.njit(cache=True)
+def _posed_kernel(poses, points, channel_angle, flat, hs, fast, fast_shape, params, shape, tables):
+    """``_posed_kernel_named`` on the arguments named (``named_args``): what the field's methods call."""
+    return _posed_kernel_named(poses, points, channel_angle, flat, hs,
+                               *named_args(fast, fast_shape, params, shape, tables))
+
+
 @numba.njit(cache=True, parallel=True)
-def _posed_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow):
+def _posed_kernel_named(poses, points, channel_angle, flat, hs, fast, fast_shape, params, shape, tables):
     """(P, M, 4): the four clearances of every point under every pose, transform and lookup in one loop.
 
     Blocks of ``_BLOCK`` points of one pose run in parallel (each writes its
@@ -361,20 +371,27 @@ def _posed_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow
         n = min(_BLOCK, n_pt - k0)
         work = new_work()
         xyz, cell, weight, ok, values, _ = _block_scratch()
-        _block_cells(_rows(poses, q), pts, k0, n, fpt, ipt, xyz, cell, weight, ok)
-        _block_values(n, flat, hs, ipt, cell, weight, values)
+        _block_cells(_rows(poses, q), pts, k0, n, fast, fast_shape, xyz, cell, weight, ok)
+        _block_values(n, flat, hs, fast_shape, cell, weight, values)
         rows = out[q, k0:k0 + n]
         for i in range(n):
             if _common(i, ok, values):
                 rows[i, 0], rows[i, 1], rows[i, 2], rows[i, 3] = values[i, 0], values[i, 1], values[i, 2], values[i, 3]
             else:
-                rows[i, 0], rows[i, 1], rows[i, 2], rows[i, 3] = _off_point(i, xyz, channel_angle, flat, hs, fpt, ipt,
-                                                                            fp, ip, slow, work)
+                rows[i, 0], rows[i, 1], rows[i, 2], rows[i, 3] = _off_point(i, xyz, channel_angle, flat, hs, fast,
+                                                                            fast_shape, params, shape, tables, work)
     return out
 
 
+@numba.njit(cache=True)
+def _pose_kernel(poses, points, channel_angle, flat, hs, fast, fast_shape, params, shape, tables):
+    """``_pose_kernel_named`` on the arguments named (``named_args``): what the field's methods call."""
+    return _pose_kernel_named(poses, points, channel_angle, flat, hs,
+                              *named_args(fast, fast_shape, params, shape, tables))
+
+
 @numba.njit(cache=True, parallel=True)
-def _pose_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow):
+def _pose_kernel_named(poses, points, channel_angle, flat, hs, fast, fast_shape, params, shape, tables):
     """Per pose the minimum of each column over the points, and the point attaining it.
 
     Blocks of 64 poses x ``_BLOCK`` points: a point under neighbouring poses
@@ -386,8 +403,8 @@ def _pose_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow)
     common case in full (``_off_point``; ``_lower`` keeps the first index of
     a tie, as one pass in order would). Results are bit for bit those of
     ``_fast_point``/``_slow_point`` per point. Pose blocks run in parallel
-    (each writes its own rows). ``fpt``, ``ipt`` are the parameter vectors
-    as tuples (passed by value: no reloads after stores).
+    (each writes its own rows). ``fast``, ``fast_shape`` are
+    named tuples (passed by value: no reloads after stores).
     """
     n_pose, n_pt = poses.shape[0], points.shape[0]
     pts = np.ascontiguousarray(points.T)
@@ -403,8 +420,8 @@ def _pose_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow)
         for k0 in range(0, n_pt, _BLOCK):
             n = min(_BLOCK, n_pt - k0)
             for q in range(q0, q1):
-                _block_cells(_rows(poses, q), pts, k0, n, fpt, ipt, xyz, cell, weight, ok)
-                _block_values(n, flat, hs, ipt, cell, weight, values)
+                _block_cells(_rows(poses, q), pts, k0, n, fast, fast_shape, xyz, cell, weight, ok)
+                _block_values(n, flat, hs, fast_shape, cell, weight, values)
                 b0, b1, b2, b3 = best[q, 0], best[q, 1], best[q, 2], best[q, 3]
                 a0, a1, a2, a3 = arg[q, 0], arg[q, 1], arg[q, 2], arg[q, 3]
                 n_off = 0
@@ -424,7 +441,8 @@ def _pose_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow)
                         b3, a3 = c, k0 + i
                 for j in range(n_off):
                     k = k0 + off[j]
-                    s, p, h, c = _off_point(off[j], xyz, channel_angle, flat, hs, fpt, ipt, fp, ip, slow, work)
+                    s, p, h, c = _off_point(off[j], xyz, channel_angle, flat, hs, fast, fast_shape, params, shape,
+                                            tables, work)
                     b0, a0 = _lower(s, k, b0, a0)
                     b1, a1 = _lower(p, k, b1, a1)
                     b2, a2 = _lower(h, k, b2, a2)
@@ -435,7 +453,8 @@ def _pose_kernel(poses, points, channel_angle, flat, hs, fpt, ipt, fp, ip, slow)
 
 
 @numba.njit(cache=True)
-def _exact_pose_kernel(poses, points, channel_angle, near_bound, far_bound, flat, hs, fpt, ipt, fp, ip, slow):
+def _exact_pose_kernel(poses, points, channel_angle, near_bound, far_bound, flat, hs, fast, fast_shape, params, shape,
+                       tables):
     """Per pose the exact minimum of each surface's signed distance over the points (branch and bound).
 
     Per point the field gives a lower bound of the exact distance: its value
@@ -450,6 +469,7 @@ def _exact_pose_kernel(poses, points, channel_angle, near_bound, far_bound, flat
     -------
     best : (P, 4) float, arg : (P, 4) int, solved : (P,) int (exact solves per pose)
     """
+    fast, fast_shape, params, shape, tables = named_args(fast, fast_shape, params, shape, tables)
     n_pose, n_pt = poses.shape[0], points.shape[0]
     best = np.full((n_pose, 4), np.inf)
     arg = np.zeros((n_pose, 4), dtype=np.int64)
@@ -457,7 +477,7 @@ def _exact_pose_kernel(poses, points, channel_angle, near_bound, far_bound, flat
     world = np.empty((n_pt, 3))
     low = np.empty((n_pt, 4))
     work = new_work()
-    nx, nr, nt, nhx, nhr = ip[_NX], ip[_NR], ip[_NT], ip[_NHX], ip[_NHR]
+    nx, nr, nt, nhx, nhr = shape.nx, shape.nr, shape.nt, shape.nhx, shape.nhr
     sure_near = ACCURATE_WITHIN - far_bound       # |value| below this: |exact| <= 2 mm
     for q in range(n_pose):
         first = np.zeros(4, dtype=np.int64)
@@ -468,16 +488,16 @@ def _exact_pose_kernel(poses, points, channel_angle, near_bound, far_bound, flat
             y = poses[q, 1, 0] * ex + poses[q, 1, 1] * ey + poses[q, 1, 2] * ez + poses[q, 1, 3]
             z = poses[q, 2, 0] * ex + poses[q, 2, 1] * ey + poses[q, 2, 2] * ez + poses[q, 2, 3]
             world[k, 0], world[k, 1], world[k, 2] = x, y, z
-            s, p, h, c, ok = _fast_point(x, y, z, flat, hs, fpt, ipt)
+            s, p, h, c, ok = _fast_point(x, y, z, flat, hs, fast, fast_shape)
             in_grid, in_table = True, True
             if not ok:
-                s, p, h, c = _slow_point(x, y, z, channel_angle, flat, hs, fp, ip, slow, work)
+                s, p, h, c = _slow_point(x, y, z, channel_angle, flat, hs, params, shape, tables, work)
                 rho = math.sqrt(y * y + z * z)
                 th = math.atan2(z, y) - channel_angle
-                th -= _TWO_PI * math.floor((th - fp[_TC] + math.pi) / _TWO_PI)
-                gx, gr, gt = (x - fp[_X0]) / fp[_HX], (rho - fp[_R0]) / fp[_HR], (th - fp[_T0]) / fp[_HT]
+                th -= _TWO_PI * math.floor((th - params.tc + math.pi) / _TWO_PI)
+                gx, gr, gt = (x - params.x0) / params.hx, (rho - params.r0) / params.hr, (th - params.t0) / params.ht
                 in_grid = 0.0 <= gx <= nx - 1 and 0.0 <= gr <= nr - 1 and 0.0 <= gt <= nt - 1
-                hx, hr = (x - fp[_HX0]) / fp[_HHX], (rho - fp[_HR0]) / fp[_HHR]
+                hx, hr = (x - params.hx0) / params.hhx, (rho - params.hr0) / params.hhr
                 in_table = 0.0 <= hx <= nhx - 1 and 0.0 <= hr <= nhr - 1
             vals = (s, p, h, c)
             for j in range(4):
@@ -497,8 +517,8 @@ def _exact_pose_kernel(poses, points, channel_angle, near_bound, far_bound, flat
                 x, y, z = world[k, 0], world[k, 1], world[k, 2]
                 rho = math.sqrt(y * y + z * z)
                 th = math.atan2(z, y) - channel_angle
-                th -= _TWO_PI * math.floor((th - fp[_TC] + math.pi) / _TWO_PI)
-                d = _exact_surface(j, x, rho, th, fp, ip, slow, work)
+                th -= _TWO_PI * math.floor((th - params.tc + math.pi) / _TWO_PI)
+                d = _exact_surface(j, x, rho, th, params, shape, tables, work)
                 solved[q] += 1
                 if d < ub:
                     ub, a = d, k

@@ -2,7 +2,7 @@
 
 Branch and bound over (sample interval x vertex cluster) on the 1-Lipschitz
 signed distance, with the side-of-wall test for vertices behind a wall; used
-by :func:`.plan_check.verify_poses` through
+by :func:`.pose_check.verify_poses` through
 :meth:`.fast.FastChannelField`. Units: mm, rad.
 """
 
@@ -15,8 +15,8 @@ from numba import types
 from numba.typed import Dict
 
 from ..geometry.spline_kernels import new_work
-from .field_params import _FR0, _FR1, _FX0, _FX1
 from .exact_solvers import _behind_at, _exact_at
+from .field_params import named_args, named_exact
 from .field_query import _fast_point
 
 
@@ -160,12 +160,13 @@ def _reach(radius, rho, offset, tau):
 
 @numba.njit(cache=True, nogil=True)
 def _min_search(surface, poses, V, c_rep, c_rad, c_off, c_left, c_right, s_mid, s_rho, s_tau, s_left, s_right,
-                seed_t, seed_k, seed_v, tol, channel_angle, fp, ip, slow):
+                seed_t, seed_k, seed_v, tol, channel_angle, params, shape, tables):
     """Exact minimum of one surface's signed distance over every (sample, vertex) pair (best-first bound).
 
     ``seed_*``: pairs evaluated already (behind a wall). Returns the minimum, its sample and vertex, the
     number of exact evaluations and the keys ``t * m + k`` of every pair evaluated.
     """
+    params, shape, tables = named_exact(params, shape, tables)
     m = V.shape[0]
     work = new_work()
     done = Dict.empty(key_type=types.int64, value_type=types.float64)
@@ -187,7 +188,7 @@ def _min_search(surface, poses, V, c_rep, c_rad, c_off, c_left, c_right, s_mid, 
         if key in done:
             v = done[key]
         else:
-            v = _exact_at(surface, px, py, pz, channel_angle, fp, ip, slow, work)
+            v = _exact_at(surface, px, py, pz, channel_angle, params, shape, tables, work)
             done[key] = v
             evaluations += 1
             if v < best or (v == best and key < best_key):
@@ -215,7 +216,7 @@ def _min_search(surface, poses, V, c_rep, c_rad, c_off, c_left, c_right, s_mid, 
 
 
 @numba.njit(cache=True, inline="always")
-def _sides(x, y, z, channel_angle, flat, hs, fpt, ipt, fp, ip, slow, work):
+def _sides(x, y, z, channel_angle, flat, hs, fast, fast_shape, params, shape, tables, work):
     """Is the point behind the suction / pressure wall: the sign rule alone, screened by the field.
 
     Beyond the faces' (x, r) box the point lies outside both footprints: in front. Where the field's
@@ -224,17 +225,24 @@ def _sides(x, y, z, channel_angle, flat, hs, fpt, ipt, fp, ip, slow, work):
     decides (``_behind_at``).
     """
     rho = math.sqrt(y * y + z * z)
-    if (x < fp[_FX0] - _BOX_MARGIN or x > fp[_FX1] + _BOX_MARGIN
-            or rho < fp[_FR0] - _BOX_MARGIN or rho > fp[_FR1] + _BOX_MARGIN):
+    if (x < params.fx0 - _BOX_MARGIN or x > params.fx1 + _BOX_MARGIN
+            or rho < params.fr0 - _BOX_MARGIN or rho > params.fr1 + _BOX_MARGIN):
         return False, False                    # beyond the faces' (x, r) box: outside both footprints
-    s, p, _, _, ok = _fast_point(x, y, z, flat, hs, fpt, ipt)
-    behind_s = False if ok and s > _SIDE_SCREEN else _behind_at(0, x, y, z, channel_angle, fp, ip, slow, work)
-    behind_p = False if ok and p > _SIDE_SCREEN else _behind_at(1, x, y, z, channel_angle, fp, ip, slow, work)
+    s, p, _, _, ok = _fast_point(x, y, z, flat, hs, fast, fast_shape)
+    behind_s = False if ok and s > _SIDE_SCREEN else _behind_at(0, x, y, z, channel_angle, params, shape, tables, work)
+    behind_p = False if ok and p > _SIDE_SCREEN else _behind_at(1, x, y, z, channel_angle, params, shape, tables, work)
     return behind_s, behind_p
 
 
+@numba.njit(cache=True)
+def _anchor_sides(poses, V, anchors, channel_angle, flat, hs, fast, fast_shape, params, shape, tables):
+    """``_anchor_sides_named`` on the arguments named (``named_args``): the entry point (plain or named tuples)."""
+    return _anchor_sides_named(poses, V, anchors, channel_angle, flat, hs,
+                               *named_args(fast, fast_shape, params, shape, tables))
+
+
 @numba.njit(cache=True, parallel=True)
-def _anchor_sides(poses, V, anchors, channel_angle, flat, hs, fpt, ipt, fp, ip, slow):
+def _anchor_sides_named(poses, V, anchors, channel_angle, flat, hs, fast, fast_shape, params, shape, tables):
     """(anchors, m, 2) bool: every vertex behind the suction / pressure wall at the anchor samples."""
     m = V.shape[0]
     out = np.zeros((anchors.shape[0], m, 2), dtype=np.bool_)
@@ -242,12 +250,22 @@ def _anchor_sides(poses, V, anchors, channel_angle, flat, hs, fpt, ipt, fp, ip, 
         work = new_work()
         for k in range(m):
             x, y, z = _place(poses, V, anchors[i], k)
-            out[i, k, 0], out[i, k, 1] = _sides(x, y, z, channel_angle, flat, hs, fpt, ipt, fp, ip, slow, work)
+            out[i, k, 0], out[i, k, 1] = _sides(x, y, z, channel_angle, flat, hs, fast, fast_shape, params, shape,
+                                                tables, work)
     return out
 
 
+@numba.njit(cache=True)
+def _sweep_sides(poses, V, face, vertex, first, last, channel_angle, flat, hs, fast, fast_shape, params, shape,
+                 tables):
+    """``_sweep_sides_named`` on the arguments named (``named_args``): the entry point (plain or named tuples)."""
+    return _sweep_sides_named(poses, V, face, vertex, first, last, channel_angle, flat, hs,
+                              *named_args(fast, fast_shape, params, shape, tables))
+
+
 @numba.njit(cache=True, parallel=True)
-def _sweep_sides(poses, V, face, vertex, first, last, channel_angle, flat, hs, fpt, ipt, fp, ip, slow):
+def _sweep_sides_named(poses, V, face, vertex, first, last, channel_angle, flat, hs, fast, fast_shape, params, shape,
+                       tables):
     """Vertex ``vertex[i]`` behind wall ``face[i]`` at samples first[i] .. last[i] - 1.
 
     Returns the flags of all runs concatenated and their starts in it ((runs + 1,) int).
@@ -260,19 +278,25 @@ def _sweep_sides(poses, V, face, vertex, first, last, channel_angle, flat, hs, f
         work = new_work()
         for t in range(first[i], last[i]):
             x, y, z = _place(poses, V, t, vertex[i])
-            out[start[i] + t - first[i]] = _sides(x, y, z, channel_angle, flat, hs, fpt, ipt, fp, ip, slow,
-                                                  work)[face[i]]
+            out[start[i] + t - first[i]] = _sides(x, y, z, channel_angle, flat, hs, fast, fast_shape, params, shape,
+                                                  tables, work)[face[i]]
     return out, start
 
 
+@numba.njit(cache=True)
+def _exact_pairs(poses, V, t, k, surface, channel_angle, params, shape, tables):
+    """``_exact_pairs_named`` on the arguments named (``named_exact``): the entry point (plain or named tuples)."""
+    return _exact_pairs_named(poses, V, t, k, surface, channel_angle, *named_exact(params, shape, tables))
+
+
 @numba.njit(cache=True, parallel=True)
-def _exact_pairs(poses, V, t, k, surface, channel_angle, fp, ip, slow):
+def _exact_pairs_named(poses, V, t, k, surface, channel_angle, params, shape, tables):
     """Exact signed distances of the given (sample, vertex, surface) triples."""
     out = np.empty(t.shape[0])
     for i in numba.prange(t.shape[0]):
         work = new_work()
         x, y, z = _place(poses, V, t[i], k[i])
-        out[i] = _exact_at(surface[i], x, y, z, channel_angle, fp, ip, slow, work)
+        out[i] = _exact_at(surface[i], x, y, z, channel_angle, params, shape, tables, work)
     return out
 
 
