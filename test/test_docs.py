@@ -73,3 +73,18 @@ def test_every_module_of_a_subpackage_is_on_its_api_page():
                 continue
             name = f"edm_planner.{package}" + ("" if module.stem == "__init__" else f".{module.stem}")
             assert f"::: {name}\n" in page, f"{name} is not on docs/api/{package}.md"
+
+
+@pytest.mark.slow
+def test_the_readme_python_example_plans_and_writes_a_certified_plan(tmp_path):
+    """The README's *From Python* block, run as a user would from the repository's directory layout: it plans
+    the channel (SUCCESS, certified) and writes the export it names."""
+    import re
+
+    code = re.search(r"```python\n(.*?)```", (REPO / "README.md").read_text(), re.S).group(1)
+    (tmp_path / "config").symlink_to(REPO / "config")
+    run = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=500)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert run.stdout.startswith("SUCCESS certified path"), run.stdout
+    plan = yaml.safe_load((tmp_path / "out" / "plan0" / "plan.json").read_text())
+    assert plan["error_code"] == "SUCCESS" and plan["channel"] == 0

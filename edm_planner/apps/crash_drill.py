@@ -19,9 +19,11 @@ rmw_fastrtps's own LOCALHOST set-up, shared memory included); JSON on stdout.
 """
 
 import argparse
+import ipaddress
 import json
 import os
 import pathlib
+import shutil
 import signal
 import subprocess
 import sys
@@ -29,10 +31,18 @@ import tempfile
 import threading
 import time
 
+import rclpy
+from edm_planner_msgs.srv import CheckInterference, ExecutePlan, LoadGeometry, PlanChannel
+from rclpy.context import Context
+from rclpy.executors import MultiThreadedExecutor
+
 from ..environment import configure_process
 
 # this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
 configure_process()
+
+from ..nodes.geometry_loader import config_directory
+from ..ros import dds
 
 NODES = ("geometry_loader", "interference_checker", "trajectory_planner", "axis_bridge")
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -102,7 +112,6 @@ class NodeSet:
 
 def udp_local_addresses(pid):
     """The local IPv4/IPv6 addresses of the UDP sockets a process holds (``/proc/<pid>/fd`` against ``net/udp*``)."""
-    import ipaddress
 
     inodes = set()
     try:
@@ -134,7 +143,6 @@ def udp_local_addresses(pid):
 
 def _probes():
     """Per node: (service type, service name, a request it answers at once whatever it holds)."""
-    from edm_planner_msgs.srv import CheckInterference, ExecutePlan, LoadGeometry, PlanChannel
 
     return {"geometry_loader": (LoadGeometry, "load_geometry", LoadGeometry.Request(path="default_blisk.yaml")),
             "interference_checker": (CheckInterference, "check_interference",
@@ -147,10 +155,6 @@ class Prober:
     """A client node of our own (its own context, executor thread) that asks the sets' nodes."""
 
     def __init__(self):
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import MultiThreadedExecutor
-
         self.context = Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node("crash_drill", context=self.context)
@@ -179,8 +183,6 @@ class Prober:
         return self.client(ns, node).call_async(request if request is not None else self.probes[node][2])
 
     def close(self):
-        import rclpy
-
         self.executor.shutdown(timeout_sec=5.0)
         self.thread.join(timeout=5.0)
         self.node.destroy_node()
@@ -236,11 +238,6 @@ def run(sets=4, rounds=2, deadline=180.0, log_dir=None, field_cache=None, progre
     deadline : float
         Seconds within which every node alive at the end must answer [s].
     """
-    import shutil
-
-    from edm_planner_msgs.srv import LoadGeometry
-
-    from ..nodes.geometry_loader import config_directory
 
     work = pathlib.Path(log_dir or tempfile.mkdtemp(prefix="crash_drill_"))
     work.mkdir(parents=True, exist_ok=True)
@@ -325,7 +322,6 @@ def main(argv=None):
     args = p.parse_args(argv)
     # killed (SIGTERM) or interrupted, the drill still stops every node it started (run()'s finally)
     signal.signal(signal.SIGTERM, signal.default_int_handler)
-    from ..ros import dds
 
     setup = dds.loopback_unless_told()
     if args.dds == "stock":

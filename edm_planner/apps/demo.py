@@ -22,9 +22,12 @@ run finds the set in the plan store.
 """
 
 import argparse
+import csv
+import json
 import math
 import os
 import pathlib
+import shutil
 import signal
 import subprocess
 import sys
@@ -32,14 +35,27 @@ import threading
 import time
 
 import numpy as np
+import rclpy
+from action_msgs.msg import GoalStatus
+from edm_planner_msgs.action import ExecutePlan, PlanElectrodeSet
+from edm_planner_msgs.msg import AxisPoint, BliskGeometry, ElectrodeDesign
+from edm_planner_msgs.srv import CheckInterference, LoadGeometry
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
+from trajectory_msgs.msg import JointTrajectory
 
 from ..environment import configure_process
 
 # this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
 configure_process()
 
+from ..geometry.frames import rotation_about_x
+from ..interference import SURFACES as SURFACE_NAMES
+from ..nodes.geometry_loader import LATCHED, config_directory
+from ..records.plan_export import read_plan
+from ..ros.action_client import LockedActionClient
+from ..ros.conversions import msg_to_mesh
 from ..ros.dds import use_loopback_udp
-from ..nodes.geometry_loader import config_directory
 from ..ros.runtime import enable_stack_dumps
 
 NODES = ("geometry_loader", "interference_checker", "trajectory_planner", "axis_bridge")
@@ -125,7 +141,6 @@ def _action(node, action_type, name, goal, timeout, bringup, on_feedback=None):
 
     Returns (status, result). Interrupted (Ctrl-C), the goal is cancelled before the exception goes on.
     """
-    from ..ros.action_client import LockedActionClient
 
     client = LockedActionClient(node, action_type, name)
     deadline = time.monotonic() + timeout
@@ -203,7 +218,6 @@ def _require(response, what):
 
 def _design_msg(d):
     """An ElectrodeDesign message of a design dict (set.json): the CheckInterference override of one electrode."""
-    from edm_planner_msgs.msg import ElectrodeDesign
 
     nan = float("nan")
     rng = d.get("axial_range") or [nan, nan]
@@ -216,7 +230,6 @@ def _design_msg(d):
 
 def _cycle_csv(path):
     """(axis names, (n, k) axis values, phases) of an export's cycle.csv."""
-    import csv
 
     with open(path) as f:
         rows = list(csv.reader(f))
@@ -226,25 +239,10 @@ def _cycle_csv(path):
 
 
 def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=False):
-    import json
-
-    import rclpy
-    from action_msgs.msg import GoalStatus
-    from edm_planner_msgs.action import ExecutePlan, PlanElectrodeSet
-    from edm_planner_msgs.msg import AxisPoint, BliskGeometry
-    from edm_planner_msgs.srv import CheckInterference, LoadGeometry
-    from rclpy.executors import SingleThreadedExecutor
-    from trajectory_msgs.msg import JointTrajectory
-
+    # heavy and optional: matplotlib (about 0.5 s to import) for the pictures only
     from ..records import plots
-    from ..geometry.frames import rotation_about_x
-    from ..interference import SURFACES as SURFACE_NAMES
-    from ..records.plan_export import read_plan
-    from ..ros.conversions import msg_to_mesh
-    from ..nodes.geometry_loader import LATCHED
 
     share = pathlib.Path(sys.prefix) / "share" / "edm_planner" / "config"
-    from rclpy.signals import SignalHandlerOptions
 
     # Ctrl-C must reach the demo as KeyboardInterrupt (stop the nodes, exit 130), not shut rclpy down
     # under a service call in flight (rclpy's own handler), which would read as a failed step
@@ -333,7 +331,6 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=Fal
                 print(f"    {len(q)} samples; smallest {clearances[label].min():.4f} mm (fast value, error bound "
                       f"{chk.error_bound * 1e3:.1f} um)")
         with Step(f"plots and 3D view in {out_dir}"):
-            import shutil
 
             label0, ex0, traj = trajectories[0]
             t = np.array([p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in traj.points])

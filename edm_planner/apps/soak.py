@@ -30,13 +30,22 @@ import threading
 import time
 
 import numpy as np
+import rclpy
+from edm_planner_msgs.msg import ElectrodeDesign
+from edm_planner_msgs.srv import CheckInterference, PlanChannel
+from rclpy.context import Context
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
 
-from ..environment import configure_process
+from ..environment import CACHE_ROOT, configure_process
 
 # this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
 configure_process()
 
-from ..environment import CACHE_ROOT
+from ..geometry.loader import parse_document
+from ..nodes.geometry_loader import config_directory
+from ..ros.dds import loopback_unless_told
+from .demo import Bringup
 
 _log = logging.getLogger(__name__)
 
@@ -64,7 +73,6 @@ def _memory_sample(calls, seconds, pids):
 
 def rear_design_msg():
     """The bench case's electrode design overrides: the rear electrode of a front/rear split."""
-    from edm_planner_msgs.msg import ElectrodeDesign
 
     nan = float("nan")
     return ElectrodeDesign(discharge_gap=nan, circumferential_reduction=0.03, reduction_side="",
@@ -74,7 +82,6 @@ def rear_design_msg():
 
 class ServiceLost(RuntimeError):
     """A service call that cannot complete: the server process is gone or the call timed out."""
-
 
 def call(client, request, timeout, alive):
     """Call ``client``'s service and wait for the answer; (response, seconds).
@@ -157,14 +164,6 @@ def run_soak(work_dir, n_check=1000, n_plan=100, n_distinct=50, sample_every=100
     exact_every : int
         Every so many CheckInterference calls one is the exact method on 5 or 6 poses.
     """
-    import rclpy
-    from edm_planner_msgs.srv import CheckInterference, PlanChannel
-    from rclpy.context import Context
-    from rclpy.executors import MultiThreadedExecutor
-    from rclpy.node import Node
-
-    from ..ros.dds import loopback_unless_told
-    from .demo import Bringup
 
     loopback_unless_told()
     os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 30))
@@ -299,8 +298,6 @@ def run_soak(work_dir, n_check=1000, n_plan=100, n_distinct=50, sample_every=100
 
 def _blade_count():
     """The default blisk's blade count, from its YAML (not the whole geometry, which the nodes load)."""
-    from ..geometry.loader import parse_document
-    from ..nodes.geometry_loader import config_directory
 
     path = config_directory() / "default_blisk.yaml"
     return int(parse_document(path.read_text(), str(path))["blade_count"])

@@ -12,6 +12,10 @@ import os
 import pathlib
 import platform
 
+import numba
+from numba.core import config
+from numba.core.registry import cpu_target
+
 #: the SIMD features that decide how the kernels vectorise, in the order reported
 SIMD_FEATURES = ("sse4.2", "avx", "avx2", "fma", "avx512f", "avx512dq", "avx512bw", "avx512vl")
 
@@ -48,7 +52,6 @@ def compile_target():
     Numba's own answer: the CPU and features its code generator targets and keys its cache by
     (``NUMBA_CPU_NAME`` / ``NUMBA_CPU_FEATURES`` where set, else the host's, less AVX where numba disables it).
     """
-    from numba.core.registry import cpu_target
 
     _, name, features = cpu_target.target_context.codegen().magic_tuple()
     return name, {f[1:]: f[0] == "+" for f in features.split(",") if f}
@@ -56,8 +59,6 @@ def compile_target():
 
 def cpu_record():
     """The CPU and the kernels' compile target, for a benchmark's JSON."""
-    import numba
-    from numba.core import config
 
     info = _cpuinfo()
     flags = set(info.get("flags", "").split())

@@ -36,11 +36,20 @@ import time
 
 import numba
 import numpy as np
+import trimesh
+from scipy.spatial.transform import Rotation
 
+from ..geometry.loader import load_geometry
 from ..interference import SURFACES
-from .common import CONFIG, rear_design
 from ..interference.exact_points import ExactChannelDistance
 from ..interference.fast import ACCURATE_WITHIN, FastChannelField
+from ..interference.pose_check import verify_poses
+from ..planning.plan import PlanOptions
+from ..planning.planner import plan_channel
+from ..planning.search import SearchOptions
+from ..records.plan_check import verify_exported_plan
+from ..records.plan_export import write_plan
+from .common import CONFIG, rear_design
 
 _log = logging.getLogger(__name__)
 
@@ -72,7 +81,6 @@ def poses_near(final_pose, n, seed=0, shift=0.05, turn=0.002):
     -------
     (n, 4, 4) float
     """
-    from scipy.spatial.transform import Rotation
 
     rng = np.random.default_rng(seed)
     poses = np.repeat(np.asarray(final_pose, dtype=np.float64)[None], n, axis=0)
@@ -113,7 +121,6 @@ def bench_fast(blisk, electrode, spacing=0.1, n_poses=1000, seed=0):
     dict
         JSON-serialisable figures, units in the keys.
     """
-    import trimesh
 
     threads = numba.get_num_threads()
     numba.set_num_threads(1)
@@ -183,9 +190,6 @@ def bench_fast(blisk, electrode, spacing=0.1, n_poses=1000, seed=0):
 def _plan_rear(geometry, field, sample_spacing):
     """The rear electrode of a front/rear split (h = 0.03 rad, radial reduction 3 mm) in channel 0: 5 axes,
     step 0.1 mm, exit downstream (as the planning benchmark), samples ``sample_spacing`` mm apart."""
-    from ..planning.plan import PlanOptions
-    from ..planning.planner import plan_channel
-    from ..planning.search import SearchOptions
 
     design = rear_design()
     opts = PlanOptions(search=SearchOptions(step=0.1, exit_side="downstream"), sample_spacing=sample_spacing)
@@ -214,9 +218,6 @@ def bench_verify_plan(geometry, sample_spacing=0.009, cache_dir=None):
         JSON-serialisable figures, units in the keys; ``exact_verify_plan_10000_samples_s`` is the time of
         :func:`~..interference.pose_check.verify_poses` on all threads, without the field's load (given separately).
     """
-    from ..interference.pose_check import verify_poses
-    from ..records.plan_check import verify_exported_plan
-    from ..records.plan_export import write_plan
 
     b = geometry.blisk
     threads = numba.get_num_threads()
@@ -276,7 +277,6 @@ def bench_verify_plan(geometry, sample_spacing=0.009, cache_dir=None):
 
 def main(argv=None):
     """Run :func:`bench_fast` and :func:`bench_verify_plan` on a geometry and write the figures as JSON."""
-    from ..geometry.loader import load_geometry
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default=str(CONFIG / "default_blisk.yaml"))

@@ -17,6 +17,13 @@ import logging
 import time
 
 from ..cli import DEFAULT_CACHE
+from ..geometry.loader import load_geometry
+from ..interference.fast import FastChannelField
+from ..machine.config import load_machine
+from ..machine.trajectory import time_run
+from ..machining.electrode_set import SetDesigner
+from ..machining.program import PlanCycle, blisk_program_steps, program_runs
+from ..process.set_process import add_process
 from .common import BLISKS, CONFIG, DESIGNED
 
 _log = logging.getLogger(__name__)
@@ -29,8 +36,6 @@ def cycle_times(plans, blade_count, pitch, machine, labels=None):
     ``plans``); without them, the plans' electrode ids, which the pieces of a
     "three axial pieces" set share ("main").
     """
-    from ..machine.trajectory import time_run
-    from ..machining.program import PlanCycle, blisk_program_steps, program_runs
 
     labels = [p.electrode_id for p in plans] if labels is None else list(labels)
     if len(labels) != len(plans) or len(set(labels)) != len(labels):
@@ -47,12 +52,6 @@ def cycle_times(plans, blade_count, pitch, machine, labels=None):
 
 
 def bench_electrode_set(blisks=BLISKS):
-    from ..geometry.loader import load_geometry
-    from ..interference.fast import FastChannelField
-    from ..machine.config import load_machine
-    from ..machining.electrode_set import SetDesigner
-    from ..process.set_process import add_process
-
     cache = DEFAULT_CACHE
     machine = load_machine(CONFIG / "machine.yaml")
     out = {"machine": "config/machine.yaml", "tolerance_mm": 0.02, "area_share_target": 0.99, "time_target_s": 60}

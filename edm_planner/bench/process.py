@@ -23,6 +23,14 @@ import time
 import numpy as np
 import trimesh
 
+from ..cli import DEFAULT_CACHE
+from ..geometry.loader import load_geometry
+from ..interference.fast import FastChannelField
+from ..machine.config import load_machine
+from ..machining.electrode_set import SetDesigner
+from ..process.report import ProcessRun, plan_process
+from ..process.set_process import add_process
+from ..process.volume import Cut, MeshBlank, channel_cavity_volume, removed_volumes
 from .common import BLISKS, CONFIG, DESIGNED
 
 _log = logging.getLogger(__name__)
@@ -45,7 +53,6 @@ def _box_volume_grown(a, b, c, g):
 
 def closed_forms(resolutions=RESOLUTIONS):
     """The plunge and the rotation sweep, exact against estimate and bracket per resolution."""
-    from ..process.volume import Cut, MeshBlank, removed_volumes
 
     a, b, c, g = 20.0, 6.0, 12.0, 0.25
     box = trimesh.creation.box((a, b, c))
@@ -103,12 +110,6 @@ def closed_forms(resolutions=RESOLUTIONS):
 
 
 def _design(name, path, process):
-    from ..cli import DEFAULT_CACHE
-    from ..geometry.loader import load_geometry
-    from ..interference.fast import FastChannelField
-    from ..machining.electrode_set import SetDesigner
-    from ..process.set_process import add_process
-
     if name in DESIGNED:
         return DESIGNED[name]
     g = load_geometry(path)
@@ -121,9 +122,6 @@ def _design(name, path, process):
 
 def blisks(names=None, resolutions=BLISK_RESOLUTIONS):
     """Per configured blisk: the delivered set's removed volume against resolution, and its process report."""
-    from ..machine.config import load_machine
-    from ..process.report import ProcessRun, plan_process
-    from ..process.volume import channel_cavity_volume
 
     process = load_machine(CONFIG / "machine.yaml").process
     out = {}

@@ -6,9 +6,21 @@ timed).
 """
 
 import contextlib
+import os
+import threading
 import time
 
 import numpy as np
+import rclpy
+from edm_planner_msgs.srv import CheckInterference, LoadGeometry
+from rclpy.context import Context
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+
+from ..nodes.geometry_loader import GeometryLoaderNode
+from ..nodes.interference_checker import InterferenceCheckerNode
+from ..ros.conversions import matrix_to_pose
+from ..ros.dds import loopback_unless_told
 
 
 @contextlib.contextmanager
@@ -18,20 +30,10 @@ def nodes_in_process():
     Yields (loader, checker, client); pass it as ``nodes`` to the round trips
     below to time several of them on one bring-up.
     """
-    import os
-    import threading
-
-    from ..ros.dds import loopback_unless_told
 
     loopback_unless_told()
     os.environ.setdefault("ROS_DOMAIN_ID", str(101 - os.getpid() % 50))
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import MultiThreadedExecutor
-    from rclpy.node import Node
 
-    from ..nodes.geometry_loader import GeometryLoaderNode
-    from ..nodes.interference_checker import InterferenceCheckerNode
 
     ctx = Context()
     rclpy.init(context=ctx)
@@ -85,9 +87,6 @@ def _bring_up(nodes):
 
 def service_round_trip(n_poses, poses_near, repeat=7, nodes=None):
     """Median round trip [ms] of CheckInterference (fast method) of ``n_poses`` poses near the final pose."""
-    from edm_planner_msgs.srv import CheckInterference
-
-    from ..ros.conversions import matrix_to_pose
 
     with _bring_up(nodes) as (_, checker, client):
         gid, ch = next(iter(checker.checkers.items()))
@@ -107,7 +106,6 @@ def load_geometry_round_trip(path, repeat=7, nodes=None):
     The node loads its default file when it starts; the timed calls name
     the same unchanged file, which it answers from memory by content hash.
     """
-    from edm_planner_msgs.srv import LoadGeometry
 
     with _bring_up(nodes) as (_, _, client):
         ms, response = _median_call_ms(client, LoadGeometry, "load_geometry", LoadGeometry.Request(path=str(path)),

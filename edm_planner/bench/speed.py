@@ -35,10 +35,17 @@ import sys
 import tempfile
 import time
 
+import numba
 import numpy as np
 
 from ..cli import DEFAULT_CACHE
+from ..geometry.loader import load_geometry
+from ..interference.fast import FastChannelField
+from ..planning.plan import PlanOptions
+from ..planning.planner import plan_channel
+from ..planning.search import SearchOptions
 from .common import CONFIG, poses_near, rear_design
+from .service import load_geometry_round_trip, nodes_in_process, service_round_trip
 
 _log = logging.getLogger(__name__)
 
@@ -58,7 +65,6 @@ def median_time(fn, repeat=REPEAT):
 
 def field_throughput(geometry, field):
     """Points per second of ``pose_clearances`` on one thread and on all of numba's."""
-    import numba
 
     e = geometry.electrodes[0]
     pts = np.asarray(e.mesh.vertices)
@@ -80,9 +86,6 @@ def field_throughput(geometry, field):
 
 def plan_certify(geometry, field, repeat=5):
     """The planning benchmark's default case: planning time (search + fit + certification) and quality."""
-    from ..planning.plan import PlanOptions
-    from ..planning.planner import plan_channel
-    from ..planning.search import SearchOptions
 
     design = rear_design()
     opts = PlanOptions(search=SearchOptions(method="default", step=0.1, exit_side="downstream"))
@@ -146,9 +149,6 @@ def demo_runs():
 
 def bench_speed():
     """Every figure of issue 13's targets (see the module's docstring)."""
-    from ..geometry.loader import load_geometry
-    from ..interference.fast import FastChannelField
-    from .service import load_geometry_round_trip, nodes_in_process, service_round_trip
 
     g = load_geometry(CONFIG / "default_blisk.yaml")
     field = FastChannelField(g.blisk, spacing=0.1, cache_dir=DEFAULT_CACHE, cache_key=g.geometry_id)

@@ -44,9 +44,8 @@ from dataclasses import replace
 
 import numpy as np
 from edm_planner_msgs.action import PlanElectrodeSet as PlanElectrodeSetAction
-from edm_planner_msgs.msg import (AxisPath, AxisPoint, BliskGeometry, ChannelPlan, PlanMetrics, PlanProgress,
-                                  RoughingStatistics)
-from edm_planner_msgs.msg import ElectrodeProcess, ElectrodeSetCandidate
+from edm_planner_msgs.msg import (AxisPath, AxisPoint, BliskGeometry, ChannelPlan, ElectrodeProcess,
+                                  ElectrodeSetCandidate, PlanMetrics, PlanProgress, RoughingStatistics)
 from edm_planner_msgs.srv import PlanChannel, PlanElectrodeSet, PlanRoughing
 from geometry_msgs.msg import PoseArray
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -66,20 +65,29 @@ from ..geometry.electrode import ElectrodeDesign, design_electrodes
 from ..geometry.loader import LoadedGeometry
 from ..interference import SURFACES
 from ..interference.fast import FastChannelField
-from ..machining.set_progress import SetDesignCancelled
+from ..machine.config import load_machine
+from ..machining.cycle import CycleOptions
+from ..machining.electrode_set import SetDesigner, SetOptions, set_id_for
+from ..machining.program import blisk_program_steps
+from ..machining.set_progress import SetDesignCancelled, SetProgress
 from ..paths import export_path
-from ..records.certificate import META_KEY, NotCertifiedError, verify_record
 from ..planning.objective import Weights
 from ..planning.plan import PlanMetrics as CorePlanMetrics
 from ..planning.plan import PlanOptions
 from ..planning.planner import plan_channel
 from ..planning.search import SearchOptions
+from ..process.set_process import add_process
+from ..process.volume import load_stock_mesh
+from ..records.certificate import META_KEY, NotCertifiedError, verify_record
+from ..records.plan_export import write_plan
+from ..records.set_files import write_set, write_stored_set
 from ..records.store import (PlanStoreError, cycle_from_record, plan_to_stored, request_key, roughing_to_stored,
-                              stored_to_plan)
-from ..roughing import RoughingOptions, plan_roughing, roughing_plan_id
+                             stored_to_plan)
 from ..ros.conversions import cycle_fields, design_override, error_code, machining_figures, matrix_to_pose
-from .geometry_loader import LATCHED
 from ..ros.runtime import answer, declare_plan_store, default_machine_file, end_canceled, spin_node
+from ..roughing import RoughingOptions, plan_roughing, roughing_plan_id
+from .geometry_loader import LATCHED
+
 
 def plan_options(settings, default_budget):
     """PlannerSettings message -> PlanOptions (NaN / 0 / empty take the defaults)."""
@@ -178,7 +186,6 @@ def fill_process(response, meta):
 
 def electrode_set_options(request, design):
     """PlanElectrodeSet request -> SetOptions (0 / NaN take the defaults)."""
-    from ..machining.electrode_set import SetOptions
 
     d = SetOptions()
 
@@ -347,10 +354,8 @@ class TrajectoryPlannerNode(Node):
         self.declare_parameter("stock_mesh", "")
         # the process section (regimes, wear) electrode sets are planned with: the machine file the axis bridge
         # times them on (the same default); a bad file stops the node at start, with the key named
-        from ..machine.config import load_machine
         self.process = load_machine(self.get_parameter("machine_file").value or default_machine_file()).process
         # a pre-machined stock the electrodes start from ('' : the solid channel); a bad file stops the node
-        from ..process.volume import load_stock_mesh
         stock = self.get_parameter("stock_mesh").value
         self.stock_mesh = load_stock_mesh(stock) if stock else None
         self.store, self.store_error = declare_plan_store(self)
@@ -469,7 +474,6 @@ class TrajectoryPlannerNode(Node):
         response.poses = pose_array_msg(plan.poses, frame)
         response.axis_path = axis_path_msg(plan.axis_names, plan.samples)
         if request.write_export:
-            from ..records.plan_export import write_plan
             root = self.get_parameter("export_dir").value or os.path.join(
                 os.path.expanduser("~"), ".local", "share", "edm_planner", "plans")
             path = export_path(root, plan.plan_id, "plan id")        # never outside export_dir, never via a link
@@ -545,11 +549,6 @@ class TrajectoryPlannerNode(Node):
     def _plan_set(self, request, response, detail=None, job=None):
         """PlanElectrodeSet, for the service and the action alike (request: a Request or a Goal, response: a
         Response or a Result); ``detail(SetProgress)`` gets the design's steps, ``job`` (_SetJob) cancels it."""
-        from ..machining.cycle import CycleOptions
-        from ..machining.electrode_set import SetDesigner, set_id_for
-        from ..machining.program import blisk_program_steps
-        from ..process.set_process import add_process
-        from ..records.set_files import write_set, write_stored_set
 
         prepared = self._geometry(request.geometry_id, parsed_only=True)
         gid = prepared.geometry_id
@@ -573,7 +572,6 @@ class TrajectoryPlannerNode(Node):
             message = f"from the plan store: {meta.get('message', '')}"
             candidates, planning_time = meta.get("candidates", []), float(meta.get("planning_time_s", 0.0))
             if detail is not None:
-                from ..machining.set_progress import SetProgress
                 detail(SetProgress(message=f"set {set_id} from the plan store").timed(1.0, 0.0), "stored")
         else:
             prepared = self._geometry(gid)
