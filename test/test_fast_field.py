@@ -397,8 +397,7 @@ def test_simd_cell_values_are_the_scalar_float32_lerps_bit_for_bit(field):
         return out
 
     flat, hs, _, ipt, _, _, _ = field._kernel_args(0)
-    nx, nr, nt, nhx, nhr = (ipt[i] for i in (field_query._NX, field_query._NR, field_query._NT, field_query._NHX,
-                                              field_query._NHR))
+    nx, nr, nt, nhx, nhr = ipt.nx, ipt.nr, ipt.nt, ipt.nhx, ipt.nhr
     rng = np.random.default_rng(83)
     n = 3000
     ix, ir, it = rng.integers(0, nx - 1, n), rng.integers(0, nr - 1, n), rng.integers(0, nt - 1, n)

@@ -19,14 +19,12 @@ import numba
 import numpy as np
 
 from ..geometry.spline_kernels import new_work
-from .field_params import ACCURATE_WITHIN, _ATAN, _TWO_PI, GridShape, named_args
+from .field_params import ACCURATE_WITHIN, _ATAN, _TWO_PI, named_args
 from .exact_solvers import _exact_blade, _exact_surface, _profile_signed
 from .cell_simd import cell_values
 from .prefetch import prefetch
 
 
-#: positions of node counts in a ``GridShape`` (``shape[_NX]``), for code that indexes it by position
-_NX, _NR, _NT, _NHX, _NHR = (GridShape._fields.index(name) for name in ("nx", "nr", "nt", "nhx", "nhr"))
 
 
 @numba.njit(cache=True, inline="always")

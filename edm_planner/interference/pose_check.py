@@ -218,7 +218,7 @@ def verify_poses(poses, vertices, channel, blisk, field=None, *, threshold=0.0, 
     t0 = time.perf_counter()
     N, m = len(P), len(V)
     full = field.kernel_args(channel)
-    args = (full[0],) + full[5:]                     # channel angle, fp, ip, slow: the exact solvers
+    args = (full.channel_angle, full.params, full.shape, full.tables)      # what the exact solvers take
 
     moves = _vertex_moves(P, V)
     max_vstep = float(moves.max()) if len(moves) else 0.0
