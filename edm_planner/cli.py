@@ -341,6 +341,7 @@ def _plan(args, out, err):
 
 def _plan_set(args, geometry, options, store, progress, out, err):
     """No design named by the file or the command line: design the channel's electrode set."""
+    # heavy, this command's only (see the note at the top)
     from .interference.fast import FastChannelField
     from .machining.electrode_set import SetDesigner, SetOptions
     from .process.set_process import add_process
@@ -355,6 +356,7 @@ def _plan_set(args, geometry, options, store, progress, out, err):
         parts = [record.where(), "time left ?" if left != left else f"time left ~{left:.0f} s", record.message]
         progress("set", record.fraction, 0, 0.0, " | ".join(p for p in parts if p))
 
+    # heavy, this command's only (see the note at the top)
     from .machine.config import default_machine_path, load_machine
     from .process.volume import load_stock_mesh
 
@@ -412,6 +414,7 @@ def _plan_set(args, geometry, options, store, progress, out, err):
 
 def _exported_plan(path):
     """(PlanCycle with the export's cycle, blade count) of a plan export directory."""
+    # heavy, this command's only (see the note at the top)
     from .machining.program import PlanCycle, read_exported_cycle
 
     p = read_plan(path)
@@ -423,6 +426,7 @@ def _exported_plan(path):
 
 def _export_job(source, store_dir, all_channels):
     """What to export: dict(name, geometry_id, kind 'plan' | 'electrode_set' | 'blisk_program', plans, steps, pitch)."""
+    # heavy, this command's only (see the note at the top)
     from .machining.program import blisk_program_steps
 
     def whole(kind, name, plans, steps, blade_count, program_name=None):
@@ -496,6 +500,7 @@ def _export_job(source, store_dir, all_channels):
 
 
 def _export(args, out):
+    # heavy, this command's only (see the note at the top)
     from .machine.config import default_machine_path, load_machine
     from .machine.nc import program_csv, trajectory_csv
     from .machine.post import ProgramRun, write_program
@@ -555,6 +560,7 @@ def _export(args, out):
 
 
 def _rough(args, out, err):
+    # heavy, this command's only (see the note at the top)
     from .roughing import RoughingOptions, plan_roughing, roughing_plan_id
 
     changes = {k: v for k, v in (("tool_radius", args.tool_radius), ("mu", args.mu), ("allowance", args.allowance))
