@@ -251,7 +251,8 @@ class FastChannelField:
                           self._shape, params, self._shape, self._tables)
 
     def _plain_args(self, channel):
-        """``kernel_args`` with plain tuples for the named ones, cached per channel: what the methods pass.
+        """``kernel_args`` with plain tuples for the named ones, cached per channel: what the methods (and
+        :func:`.pose_check.verify_poses`) splat into the entry kernels.
 
         numba types a plain tuple in C and a named tuple in Python (about 20 us
         more per call); the entry kernels name them (``field_params.named_args``).
@@ -259,7 +260,7 @@ class FastChannelField:
         plain = self._plain.get(channel)
         if plain is None:
             args = self.kernel_args(channel)
-            plain = self._plain[channel] = args[:3] + tuple(tuple(named) for named in args[3:])
+            plain = self._plain[channel] = KernelArgs(*args[:3], *(tuple(named) for named in args[3:]))
         return plain
 
     def _kernel_args(self, channel=0):

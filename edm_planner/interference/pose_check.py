@@ -217,7 +217,7 @@ def verify_poses(poses, vertices, channel, blisk, field=None, *, threshold=0.0, 
     report = progress or (lambda *a: None)
     t0 = time.perf_counter()
     N, m = len(P), len(V)
-    full = field.kernel_args(channel)
+    full = field._plain_args(channel)                # plain inner tuples: numba types them in C, fast
     args = (full.channel_angle, full.params, full.shape, full.tables)      # what the exact solvers take
 
     moves = _vertex_moves(P, V)
