@@ -6,7 +6,7 @@ Layers, top to bottom (a contract import-linter checks, ``.importlinter``):
   :mod:`.ros` (their shared rclpy parts);
 * :mod:`.records`: the plan store, the certificate digest, exports, plots;
 * the domain, plain numpy/scipy/trimesh/numba without rclpy: :mod:`.process`, :mod:`.machining`,
-  :mod:`.planning` and :mod:`.roughing`, :mod:`.machine` and :mod:`.interference`, :mod:`.geometry`;
+  :mod:`.planning` and :mod:`.roughing`, :mod:`.cnc` and :mod:`.interference`, :mod:`.geometry`;
 * the base: :mod:`.errors`, :mod:`.constants`, :mod:`.paths`, :mod:`.environment`.
 
 Importing the package has no side effects; entry points call

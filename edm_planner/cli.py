@@ -357,7 +357,7 @@ def _plan_set(args, geometry, options, store, progress, out, err):
         progress("set", record.fraction, 0, 0.0, " | ".join(p for p in parts if p))
 
     # heavy, this command's only (see the note at the top)
-    from .machine.config import default_machine_path, load_machine
+    from .cnc.config import default_machine_path, load_machine
     from .process.volume import load_stock_mesh
 
     process = load_machine(args.machine or default_machine_path()).process
@@ -501,10 +501,10 @@ def _export_job(source, store_dir, all_channels):
 
 def _export(args, out):
     # heavy, this command's only (see the note at the top)
-    from .machine.config import default_machine_path, load_machine
-    from .machine.nc import program_csv, trajectory_csv
-    from .machine.post import ProgramRun, write_program
-    from .machine.trajectory import plan_trajectory, time_run
+    from .cnc.config import default_machine_path, load_machine
+    from .cnc.nc import program_csv, trajectory_csv
+    from .cnc.post import ProgramRun, write_program
+    from .cnc.trajectory import plan_trajectory, time_run
     from .machining.program import program_runs
 
     job = _export_job(args.source, args.store, args.all_channels)

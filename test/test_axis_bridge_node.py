@@ -14,8 +14,8 @@ from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from edm_planner.geometry.frames import rotation_about_x
-from edm_planner.machine.config import default_machine_path, load_machine
-from edm_planner.machine.kinematics import FiveAxisKinematics
+from edm_planner.cnc.config import default_machine_path, load_machine
+from edm_planner.cnc.kinematics import FiveAxisKinematics
 from edm_planner.nodes.axis_bridge import AxisBridgeNode
 from edm_planner.ros.conversions import pose_to_matrix
 from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode
@@ -176,7 +176,7 @@ def test_execute_publishes_the_joint_trajectory(system):
 def test_nc_and_csv_export_match_the_published_trajectory(system):
     from types import SimpleNamespace
 
-    from edm_planner.machine.post import check_program, parse_nc
+    from edm_planner.cnc.post import check_program, parse_nc
 
     inbox = system["trajectories"]
     count = len(inbox.items)
@@ -235,7 +235,7 @@ def test_machine_a_zero_and_c_pivot_keep_the_published_poses(system):
 
 def test_six_axis_machine_executes_a_six_axis_plan(system):
     """machine_file = config/machine_6axis.yaml: a 6-axis plan is sent as six joints; a 5-axis plan is refused."""
-    from edm_planner.machine.kinematics import axis_poses
+    from edm_planner.cnc.kinematics import axis_poses
 
     res = execute(system, service="six/execute_plan", dry_run=True)       # the 5-axis plan: B left undefined
     assert not res.success and res.error_code.val == ErrorCode.INVALID_REQUEST

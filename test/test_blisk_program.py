@@ -17,11 +17,11 @@ import pytest
 
 from edm_planner.errors import EdmError, ErrorCode
 from edm_planner.geometry.electrode import ElectrodeDesign
-from edm_planner.machine.config import default_machine_path, load_machine
-from edm_planner.machine.kinematics import axis_poses
-from edm_planner.machine.nc import PHASE_COLUMNS, program_csv
-from edm_planner.machine.post import ProgramRun, parse_nc, write_program
-from edm_planner.machine.trajectory import time_run
+from edm_planner.cnc.config import default_machine_path, load_machine
+from edm_planner.cnc.kinematics import axis_poses
+from edm_planner.cnc.nc import PHASE_COLUMNS, program_csv
+from edm_planner.cnc.post import ProgramRun, parse_nc, write_program
+from edm_planner.cnc.trajectory import time_run
 from edm_planner.machining.cycle import PHASES
 from edm_planner.machining.program import (INDEX, PlanCycle, blisk_program_steps, program_runs, sequence_id_for,
                                            shift_to_channel)

@@ -128,7 +128,7 @@ def test_failures_exit_with_their_error_code(setup, tmp_path):
 @pytest.mark.slow
 def test_plan_is_kept_in_the_store_and_exported_to_nc_and_csv(setup, tmp_path):
     """plan -> store -> the same request from the store; export by id and by directory agree; NC reads back."""
-    from edm_planner.machine.post import parse_nc
+    from edm_planner.cnc.post import parse_nc
 
     yaml, cache, _ = setup
     store = str(tmp_path / "store")
@@ -183,7 +183,7 @@ def test_export_and_store_errors(setup, tmp_path):
 def test_rough_plans_keeps_and_exports_a_roughing_plan(tmp_path):
     import json
 
-    from edm_planner.machine.post import parse_nc
+    from edm_planner.cnc.post import parse_nc
 
     store = str(tmp_path / "store")
     argv = ["rough", "--geometry", str(CONFIG / "default_blisk.yaml"), "--channel", "4", "--store", store]

@@ -17,8 +17,8 @@ import pytest
 
 from edm_planner.errors import EdmError, ErrorCode
 from edm_planner.geometry.electrode import ElectrodeDesign
-from edm_planner.machine.config import default_machine_path, load_machine
-from edm_planner.machine.trajectory import plan_trajectory, time_leg, time_run
+from edm_planner.cnc.config import default_machine_path, load_machine
+from edm_planner.cnc.trajectory import plan_trajectory, time_leg, time_run
 from edm_planner.machining.cycle import PHASES, CycleOptions
 from edm_planner.machining.program import PlanCycle, program_runs
 
@@ -289,7 +289,7 @@ def test_channel_plan_message_carries_the_cycle_and_the_machining_figures(bridge
 def test_execute_a_plan_with_its_cycle_from_the_topic(bridge):
     from types import SimpleNamespace
 
-    from edm_planner.machine.post import check_program, parse_nc
+    from edm_planner.cnc.post import check_program, parse_nc
 
     inbox, plan = bridge["trajectories"], bridge["plan"]
     count = len(inbox.items)

@@ -82,8 +82,8 @@ def test_demo_runs_end_to_end_and_writes_its_pictures(tmp_path):
     # one truth for the times: each export (plan.json's legs and cycle.csv) times its cycle as the bridge did
     # from the plan store (the same regimes and removed volumes, timed on the same machine file)
     from edm_planner.cli import _exported_plan
-    from edm_planner.machine.config import default_machine_path, load_machine
-    from edm_planner.machine.trajectory import time_run
+    from edm_planner.cnc.config import default_machine_path, load_machine
+    from edm_planner.cnc.trajectory import time_run
     from edm_planner.machining.program import program_runs
 
     machine = load_machine(default_machine_path())

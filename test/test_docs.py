@@ -11,7 +11,7 @@ import yaml
 from conftest import REPO
 
 #: the sub-packages with an API page of their own (docs/api/<name>.md), one ``::: module`` directive per module
-API_PACKAGES = ("geometry", "interference", "planning", "machining", "machine", "process", "roughing", "records",
+API_PACKAGES = ("geometry", "interference", "planning", "machining", "cnc", "process", "roughing", "records",
                 "nodes", "ros", "apps", "bench")
 
 
@@ -47,7 +47,7 @@ def test_every_page_of_the_nav_is_built(site):
     out, _ = site
     config = yaml.safe_load((REPO / "mkdocs.yml").read_text())
     pages = list(nav_pages(config["nav"]))
-    assert "index.md" in pages and "api/machine.md" in pages
+    assert "index.md" in pages and "api/cnc.md" in pages
     for page in pages:
         assert (REPO / "docs" / page).is_file(), page
         assert (out / page).with_suffix(".html").is_file(), page      # use_directory_urls: false
@@ -58,9 +58,9 @@ def test_every_page_of_the_nav_is_built(site):
 
 def test_the_post_processor_page_documents_write_program(site):
     out, _ = site
-    text = (out / "api" / "machine.html").read_text()
-    assert 'id="edm_planner.machine.post"' in text
-    assert 'id="edm_planner.machine.post.write_program"' in text
+    text = (out / "api" / "cnc.html").read_text()
+    assert 'id="edm_planner.cnc.post"' in text
+    assert 'id="edm_planner.cnc.post.write_program"' in text
     assert "The NC program of one or more electrodes" in text      # its docstring, not only its name
 
 

@@ -5,7 +5,7 @@ import pytest
 
 from edm_planner.geometry.electrode import ElectrodeDesign, design_electrodes
 from edm_planner.interference.exact_points import ExactChannelDistance, transform_points
-from edm_planner.machine.kinematics import state_axes
+from edm_planner.cnc.kinematics import state_axes
 from edm_planner.planning.search import ExitSearch, SearchOptions, SearchStatus
 
 
@@ -50,7 +50,7 @@ def test_reduced_rear_electrode_exits_downstream_with_its_margins(setup):
     # every node keeps the margins by the exact distance of all electrode vertices
     exact = ExactChannelDistance(g.blisk)
     a, c = res.states[:, 3], res.states[:, 4]
-    from edm_planner.machine.kinematics import state_poses
+    from edm_planner.cnc.kinematics import state_poses
     poses = state_poses(rear.final_pose, res.states[:, :3], a, c)
     worst = min(exact.clearances(transform_points(p[None], rear.mesh.vertices)[0]).min() for p in poses[::5])
     assert worst >= 0.02 - 0.005        # margin, less the field bound the search accounts for on sampled points

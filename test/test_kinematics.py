@@ -6,7 +6,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from edm_planner.geometry.frames import rotation_about_x
-from edm_planner.machine.kinematics import FiveAxisKinematics
+from edm_planner.cnc.kinematics import FiveAxisKinematics
 
 PITCH = 2 * np.pi / 60
 

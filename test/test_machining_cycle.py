@@ -16,7 +16,7 @@ import pytest
 from edm_planner.geometry.electrode import ElectrodeDesign, design_electrodes
 from edm_planner.geometry.frames import rotation_about_x
 from edm_planner.geometry.loader import load_geometry
-from edm_planner.machine.kinematics import axis_poses
+from edm_planner.cnc.kinematics import axis_poses
 from edm_planner.machining.cycle import PHASES, CycleOptions, comb_shares, side_rotations
 from edm_planner.machining.electrode_set import Piece, SetDesigner, SetOptions, candidate_sets
 from edm_planner.machining.removal import simulate_removal
@@ -263,7 +263,7 @@ def test_write_set_of_a_one_piece_result(rear, tmp_path):
 
 def test_the_cycle_ends_at_a_clear_position_beyond_the_part(rear):
     """The clear leg: X alone, away from the blisk, to where no A, C, Y or Z move can reach the part."""
-    from edm_planner.machine.kinematics import axis_poses
+    from edm_planner.cnc.kinematics import axis_poses
 
     g, field, electrode, plan, builder, cycle = rear
     zone, leg = cycle.clear_zone, cycle.legs[-1]

@@ -4,7 +4,7 @@ One real certified plan (the rear electrode of the front/rear split, ``rear_cycl
 under another id as a second electrode make a whole-blisk program over three channels: clear legs, index
 moves at the clear position, a tool change. It is written in both shipped dialects and both structures.
 pygcode splits every line into words; the few words it does not model (G52, M98, M99, O) are applied by
-this test's own interpreter, independent of :func:`edm_planner.machine.post.read_program`.
+this test's own interpreter, independent of :func:`edm_planner.cnc.post.read_program`.
 """
 
 import copy
@@ -19,12 +19,12 @@ import pytest
 from pygcode import Line
 
 from edm_planner.errors import EdmError, ErrorCode
-from edm_planner.machine.config import default_machine_path, load_machine
-from edm_planner.machine.dialect import load_dialect, parse_dialect
-from edm_planner.machine.kinematics import axis_poses
-from edm_planner.machine.nc import program_csv
-from edm_planner.machine.post import ProgramRun, check_program, write_program
-from edm_planner.machine.trajectory import time_run
+from edm_planner.cnc.config import default_machine_path, load_machine
+from edm_planner.cnc.dialect import load_dialect, parse_dialect
+from edm_planner.cnc.kinematics import axis_poses
+from edm_planner.cnc.nc import program_csv
+from edm_planner.cnc.post import ProgramRun, check_program, write_program
+from edm_planner.cnc.trajectory import time_run
 from edm_planner.machining.program import INDEX, PlanCycle, blisk_program_steps, program_runs
 
 DIALECTS = ("iso_fanuc", "beckhoff_edm_plus")
@@ -253,7 +253,7 @@ def test_a_narrow_feed_range_slows_blocks_and_says_so(program):
 
 def _dialect_doc(name):
     import yaml
-    from edm_planner.machine.dialect import DIALECT_DIR
+    from edm_planner.cnc.dialect import DIALECT_DIR
     return yaml.safe_load((DIALECT_DIR / f"{name}.yaml").read_text())
 
 

@@ -13,9 +13,9 @@ from edm_planner.geometry.frames import rotation_about_x
 from edm_planner.geometry.electrode import ElectrodeDesign, design_electrodes
 from edm_planner.interference import SURFACES
 from edm_planner.interference.exact_points import ExactChannelDistance, transform_points
-from edm_planner.machine.kinematics import state_axes, state_poses
+from edm_planner.cnc.kinematics import state_axes, state_poses
 from edm_planner.interference.pose_check import verify_poses
-from edm_planner.machine.kinematics import axes_to_poses
+from edm_planner.cnc.kinematics import axes_to_poses
 from edm_planner.records.plan_check import verify_exported_plan
 from edm_planner.records.plan_export import FORMAT, PlanFileError, read_plan, write_plan
 from edm_planner.planning.plan import AXIS_NAMES, Plan, PlanMetrics, PlanOptions

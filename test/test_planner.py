@@ -10,7 +10,7 @@ from edm_planner.geometry.loader import load_geometry
 from edm_planner.interference.exact_points import ExactChannelDistance, transform_points
 from edm_planner.interference import SURFACES
 from edm_planner.interference.fast import FastChannelField
-from edm_planner.machine.kinematics import axis_poses
+from edm_planner.cnc.kinematics import axis_poses
 from edm_planner.planning.certify import PathCertifier
 from edm_planner.planning.plan import PlanOptions
 from edm_planner.planning.planner import plan_channel, smoothness_figures

@@ -8,8 +8,8 @@ import pytest
 import yaml
 
 from edm_planner.errors import EdmError, ErrorCode
-from edm_planner.machine.config import default_machine_path, load_machine, parse_machine
-from edm_planner.machine.trajectory import time_leg, time_run
+from edm_planner.cnc.config import default_machine_path, load_machine, parse_machine
+from edm_planner.cnc.trajectory import time_leg, time_run
 from edm_planner.machining.program import PlanCycle, ProgramLeg
 from edm_planner.process.model import DEFAULT_PROCESS, parse_process
 

@@ -9,9 +9,9 @@ import pytest
 
 from edm_planner.errors import EdmError, ErrorCode
 from edm_planner.geometry.profiles import RevolutionProfile
-from edm_planner.machine.config import load_machine
-from edm_planner.machine.kinematics import axis_poses
-from edm_planner.machine.trajectory import plan_trajectory
+from edm_planner.cnc.config import load_machine
+from edm_planner.cnc.kinematics import axis_poses
+from edm_planner.cnc.trajectory import plan_trajectory
 from edm_planner.roughing import (RoughingOptions, RoughingOptionsError, error_stats, plan_roughing,
                                   reduction_percent)
 from edm_planner.roughing.distance import RevolutionDistance

@@ -10,7 +10,7 @@ from edm_planner_msgs.srv import ExecutePlan, PlanRoughing
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from edm_planner.machine.kinematics import axis_poses
+from edm_planner.cnc.kinematics import axis_poses
 from edm_planner.nodes.axis_bridge import AxisBridgeNode
 from edm_planner.ros.conversions import pose_to_matrix
 from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from edm_planner.errors import EdmError, ErrorCode
-from edm_planner.machine.config import default_machine_path, load_machine, parse_machine
-from edm_planner.machine.timing import TimingOptions, check_limits, time_parameterize
-from edm_planner.machine.trajectory import plan_trajectory
+from edm_planner.cnc.config import default_machine_path, load_machine, parse_machine
+from edm_planner.cnc.timing import TimingOptions, check_limits, time_parameterize
+from edm_planner.cnc.trajectory import plan_trajectory
 
 AXES = ("X", "Y", "Z", "A", "C")
 MACHINE_YAML = default_machine_path().read_text()
@@ -201,7 +201,7 @@ def test_plan_needing_more_than_a_limit_is_slowed(machine):
 
 
 def test_smoothing_never_raises_the_speed_profile():
-    from edm_planner.machine.timing import smooth_profile
+    from edm_planner.cnc.timing import smooth_profile
 
     rng = np.random.default_rng(5)
     x = np.concatenate([[0.0], rng.uniform(0.1, 2.0, 300), [0.0]])      # a chattering profile
@@ -328,7 +328,7 @@ def test_real_plan_timed_on_the_default_machine(real_plan, machine):
 # -- NC program and CSV ----------------------------------------------------------------------------
 def _nc_round_trip(j, plan, machine, axes):
     """The plan's NC program (default dialect): checked against the timed points, read back."""
-    from edm_planner.machine.post import ProgramRun, check_program, parse_nc, write_program
+    from edm_planner.cnc.post import ProgramRun, check_program, parse_nc, write_program
 
     text, stats = write_program([ProgramRun(j, plan.electrode_id, plan.plan_id)], plan.plan_id, plan.geometry_id,
                                 "plan", machine)
@@ -343,7 +343,7 @@ def _nc_round_trip(j, plan, machine, axes):
 
 @pytest.mark.slow
 def test_nc_export_parses_back_to_the_same_timed_path(real_plan, machine):
-    from edm_planner.machine.nc import trajectory_csv
+    from edm_planner.cnc.nc import trajectory_csv
 
     plan = real_plan
     j = plan_trajectory(plan.samples, plan.axis_names, machine)
@@ -363,7 +363,7 @@ def test_nc_export_parses_back_to_the_same_timed_path(real_plan, machine):
 
 
 def test_nc_reader_rejects_what_the_writer_does_not_write():
-    from edm_planner.machine.post import read_program
+    from edm_planner.cnc.post import read_program
 
     head = "%\nO1000 (X)\nN10 G17 G40 G49 G80 G21 G90\n"
     tool = "N20 G94\nN30 T1 M06\nN40 G00 X1.0\nN50 G00 Y2.0 A0.0\n"
@@ -390,7 +390,7 @@ def test_nc_reader_rejects_what_the_writer_does_not_write():
 @pytest.mark.slow
 def test_machine_a_zero_and_c_pivot_keep_the_certified_poses(real_plan, machine):
     """A machine whose C axis is 4.5 mm off the electrode origin and whose channel 0 is at A = 0.5 rad."""
-    from edm_planner.machine.kinematics import FiveAxisKinematics
+    from edm_planner.cnc.kinematics import FiveAxisKinematics
 
     plan = real_plan
     pivoted = replace(machine, a_zero=0.5, c_pivot=(4.0, -2.0, 30.0))
@@ -510,7 +510,7 @@ def test_plan_axes_must_be_the_machines(machine, machine4, machine6):
 def test_real_four_axis_plan_timed(plan4, machine4):
     """No A: the path's X, Y, Z, C are channel 0's and channel 3 is indexed outside the path."""
     from edm_planner.geometry.frames import rotation_about_x
-    from edm_planner.machine.kinematics import axis_poses
+    from edm_planner.cnc.kinematics import axis_poses
 
     plan, m = plan4, machine4
     j = plan_trajectory(plan.samples, plan.axis_names, m)
@@ -529,7 +529,7 @@ def test_real_four_axis_plan_timed(plan4, machine4):
     back = rotation_about_x(3 * PITCH)[None] @ axis_poses(plan.final_pose, AXES4, planner_values(j, m))
     np.testing.assert_allclose(back, plan.poses[t.sample_index], rtol=0, atol=1e-9)
     # a C pivot on the four-axis machine moves X, Y, Z and keeps every pose (measured residual)
-    from edm_planner.machine.trajectory import machine_poses
+    from edm_planner.cnc.trajectory import machine_poses
 
     pivoted = replace(m, c_pivot=(4.0, -2.0, 30.0), a_zero=0.7)             # A0 has no effect without A
     jp = plan_trajectory(plan.samples, plan.axis_names, pivoted, final_pose=plan.final_pose)
@@ -542,7 +542,7 @@ def test_real_four_axis_plan_timed(plan4, machine4):
 
 @pytest.mark.slow
 def test_real_six_axis_plan_timed_in_the_machine_joint_order(plan6, machine6):
-    from edm_planner.machine.kinematics import axis_poses
+    from edm_planner.cnc.kinematics import axis_poses
 
     plan, m = plan6, machine6
     j = plan_trajectory(plan.samples, plan.axis_names, m)

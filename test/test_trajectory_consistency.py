@@ -30,9 +30,9 @@ import numpy as np
 import pytest
 from scipy.interpolate import BPoly
 
-from edm_planner.machine.config import default_machine_path, load_machine
-from edm_planner.machine.timing import TimingOptions
-from edm_planner.machine.trajectory import time_leg, time_run
+from edm_planner.cnc.config import default_machine_path, load_machine
+from edm_planner.cnc.timing import TimingOptions
+from edm_planner.cnc.trajectory import time_leg, time_run
 from edm_planner.machining.program import PlanCycle, blisk_program_steps, program_runs
 
 #: the bound of the trapezoid check, a fraction of the leg's peak (TimingOptions.consistency)

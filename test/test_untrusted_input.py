@@ -210,7 +210,7 @@ def test_geometry_loader_limits_are_parameters(ros, tmp_path):
     (b"\xff\xfe\x00garbage", "UTF-8"),
 ])
 def test_a_hostile_machine_file_is_refused_with_file_error(tmp_path, content, words):
-    from edm_planner.machine.config import load_machine
+    from edm_planner.cnc.config import load_machine
 
     path = tmp_path / "machine.yaml"
     path.write_bytes(content if isinstance(content, bytes) else content.encode())
@@ -220,7 +220,7 @@ def test_a_hostile_machine_file_is_refused_with_file_error(tmp_path, content, wo
 
 
 def test_an_endless_machine_file_is_refused_at_the_size_limit():
-    from edm_planner.machine.config import MAX_MACHINE_BYTES, load_machine
+    from edm_planner.cnc.config import MAX_MACHINE_BYTES, load_machine
 
     with pytest.raises(EdmError) as exc:
         load_machine("/dev/zero")

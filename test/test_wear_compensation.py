@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from edm_planner.machine.kinematics import axis_poses, offset_axes
+from edm_planner.cnc.kinematics import axis_poses, offset_axes
 from edm_planner.machining.program import PlanCycle, blisk_program_steps, program_runs
 from edm_planner.process.report import ElectrodeProcess, compensation_schedule
 

@@ -19,8 +19,8 @@ import time
 from ..cli import DEFAULT_CACHE
 from ..geometry.loader import load_geometry
 from ..interference.fast import FastChannelField
-from ..machine.config import load_machine
-from ..machine.trajectory import time_run
+from ..cnc.config import load_machine
+from ..cnc.trajectory import time_run
 from ..machining.electrode_set import SetDesigner
 from ..machining.program import PlanCycle, blisk_program_steps, program_runs
 from ..process.set_process import add_process

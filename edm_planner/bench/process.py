@@ -26,7 +26,7 @@ import trimesh
 from ..cli import DEFAULT_CACHE
 from ..geometry.loader import load_geometry
 from ..interference.fast import FastChannelField
-from ..machine.config import load_machine
+from ..cnc.config import load_machine
 from ..machining.electrode_set import SetDesigner
 from ..process.report import ProcessRun, plan_process
 from ..process.set_process import add_process

@@ -47,7 +47,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from ..interference import SURFACES
-from ..machine.kinematics import axis_poses, offset_axes
+from ..cnc.kinematics import axis_poses, offset_axes
 from ..planning.certify import PathCertifier
 
 _log = logging.getLogger(__name__)
@@ -268,7 +268,7 @@ class MachiningCycle:
 
     def with_compensation_depth(self, depth, final_pose):
         """The legs run with the wear compensation ``depth`` [mm]: every pose moved that far along the
-        front in the electrode frame (:func:`~edm_planner.machine.kinematics.offset_axes`); the legs as they
+        front in the electrode frame (:func:`~edm_planner.cnc.kinematics.offset_axes`); the legs as they
         are without compensation or at depth 0.
 
         Certified by inclusion, with no new certificate: the wear model recedes the front uniformly along

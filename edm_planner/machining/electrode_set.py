@@ -52,7 +52,7 @@ from ..geometry.electrode import ElectrodeDesign, design_electrodes
 from ..geometry.frames import rotation_about_x
 from ..interference import SURFACES
 from ..interference.fast import FastChannelField
-from ..machine.kinematics import axis_poses
+from ..cnc.kinematics import axis_poses
 from ..planning.certify import AGREEMENT_ACCURACY
 from ..planning.plan import PlanOptions
 from ..planning.planner import add_exact_clearance, plan_channel, plan_id_for

@@ -25,7 +25,7 @@ least the separation at the leg's ends (X moves linearly along it). Between two
 electrodes a **tool change**: each electrode's trajectory ends at its clear
 position and the next one starts at its own; the NC program switches to G94,
 changes the tool there and moves to the next clear position X first
-(:mod:`edm_planner.machine.post`).
+(:mod:`edm_planner.cnc.post`).
 
 A four-axis machine (X, Y, Z, C) has no A: its channel is indexed outside the
 program, so a step in another channel than its plan's is refused.
@@ -211,7 +211,7 @@ def index_leg(q_from, q_to, axis_names, plan, channel, compensation=0.0):
     """The A turn at the clear position from one channel's to another's: one straight leg in axis space.
 
     It moves A only, and with wear compensation X, Y, Z by the change of the compensation
-    (``compensation`` [mm], the depth added along the front; :func:`~edm_planner.machine.kinematics.offset_axes`
+    (``compensation`` [mm], the depth added along the front; :func:`~edm_planner.cnc.kinematics.offset_axes`
     moves X, Y, Z by the same amount at any A). Certified by the plan's clear zone
     (:class:`~edm_planner.machining.cycle.ClearZone`): the separation from the part's envelope depends on X
     alone, which moves linearly, so its smaller end value bounds the whole leg; INFEASIBLE where that is

@@ -24,7 +24,7 @@ from scipy.interpolate import CubicSpline
 
 from ..errors import EdmError, ErrorCode
 from ..geometry.electrode import Electrode, design_electrodes
-from ..machine.kinematics import axis_poses
+from ..cnc.kinematics import axis_poses
 from ..planning.certify import PathCertifier
 from .cycle import CycleBuilder
 from .mesh_distance import MeshDistance

@@ -3,7 +3,7 @@
 Subscribes to the trajectory_planner's latched ``plan`` topic
 (edm_planner_msgs/ChannelPlan) and keeps the plans it has seen by id. The
 ``execute_plan`` service (edm_planner_msgs/ExecutePlan) times a plan on the
-configured machine (toppra, ``edm_planner.machine.timing``) and, unless
+configured machine (toppra, ``edm_planner.cnc.timing``) and, unless
 ``dry_run``, publishes it as ``trajectory_msgs/JointTrajectory``.
 
 Machines of 4 (X, Y, Z, C), 5 (X, Y, Z, A, C) and 6 axes (X, Y, Z, A, C, B):
@@ -109,10 +109,10 @@ DDS_SETUP = prepare_process()
 
 from ..errors import EdmError, ErrorCode
 from ..geometry.frames import is_rigid, pose_difference, rotation_about_x
-from ..machine.config import LINEAR, load_machine
-from ..machine.nc import trajectory_csv
-from ..machine.post import ProgramRun, write_program
-from ..machine.trajectory import check_samples_travel, plan_trajectory, time_run
+from ..cnc.config import LINEAR, load_machine
+from ..cnc.nc import trajectory_csv
+from ..cnc.post import ProgramRun, write_program
+from ..cnc.trajectory import check_samples_travel, plan_trajectory, time_run
 from ..machining.program import PlanCycle, program_runs
 from ..paths import export_path, open_for_export
 from ..records.certificate import certificate_digest, check_digest

@@ -49,7 +49,7 @@ from ..errors import EdmError, ErrorCode
 from ..geometry.blisk import Blisk
 from ..geometry.electrode import ElectrodeDesign, design_electrodes
 from ..interference.checker import ChannelChecker, CheckerOptions, Method
-from ..machine.kinematics import AXES_5, FiveAxisKinematics
+from ..cnc.kinematics import AXES_5, FiveAxisKinematics
 from ..ros.runtime import answer, spin_node
 from ..ros.conversions import (design_override, error_code, msg_to_mesh, pose_to_matrix, poses_to_arrays,
                           quaternions_to_matrices)

@@ -65,7 +65,7 @@ from ..geometry.electrode import ElectrodeDesign, design_electrodes
 from ..geometry.loader import LoadedGeometry
 from ..interference import SURFACES
 from ..interference.fast import FastChannelField
-from ..machine.config import load_machine
+from ..cnc.config import load_machine
 from ..machining.cycle import CycleOptions
 from ..machining.electrode_set import SetDesigner, SetOptions, set_id_for
 from ..machining.program import blisk_program_steps

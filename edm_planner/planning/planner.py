@@ -34,7 +34,7 @@ from ..geometry.frames import rotation_about_x
 from ..interference import SURFACES
 from ..interference.fast import FastChannelField
 from ..interference.pose_check import verify_poses
-from ..machine.kinematics import axis_poses, state_axes
+from ..cnc.kinematics import axis_poses, state_axes
 from .certify import AGREEMENT_ACCURACY, PathCertifier
 from .plan import AXIS_NAMES, Plan, PlanMetrics, PlanOptions
 from .search import ExitSearch, SearchStatus

@@ -29,7 +29,7 @@ import numpy as np
 from ..errors import ErrorCode
 from ..interference import SURFACES
 from ..interference.wall_features import TriangleGrid
-from ..machine.kinematics import state_poses
+from ..cnc.kinematics import state_poses
 from .ga import GAOptions, NoFeasibleStart, minimize_ga
 from .lp import DenseLp
 from .objective import Weights, margin, smoothness

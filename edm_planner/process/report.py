@@ -35,7 +35,7 @@ import numba
 import numpy as np
 
 from ..errors import EdmError, ErrorCode
-from ..machine.kinematics import axis_poses
+from ..cnc.kinematics import axis_poses
 from ..machining.proof_path import proof_legs
 from .volume import AnnulusBlank, Cut, channel_cavity_volume, removed_volumes
 

@@ -16,7 +16,7 @@ import trimesh
 from ..errors import EdmError, ErrorCode
 from ..interference.exact_points import transform_points
 from ..interference.pose_check import box_error, verify_poses
-from ..machine.kinematics import axes_to_poses
+from ..cnc.kinematics import axes_to_poses
 from .plan_export import MAX_VERTEX_STEP, read_plan
 
 _log = logging.getLogger(__name__)

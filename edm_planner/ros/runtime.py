@@ -11,7 +11,7 @@ from ament_index_python.packages import PackageNotFoundError, get_package_share_
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
 from ..errors import EdmError, ErrorCode
-from ..machine.config import default_machine_path
+from ..cnc.config import default_machine_path
 from ..records.store import PlanStoreError, open_store
 from .conversions import error_code
 

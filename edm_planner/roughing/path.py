@@ -8,7 +8,7 @@ Frames (all in the workpiece frame W, mm and rad):
   its axis) are fixed by the machine, see below.
 * carrier frame K = T . CARRIER_IN_TOOL -- the frame the machine's axes move:
   K_x = T_z (the tool axis), K_z = -T_x. The machine's C axis turns K about
-  its own z (``edm_planner.machine.kinematics``: pose = R_x(A) . T(X, Y, Z) .
+  its own z (``edm_planner.cnc.kinematics``: pose = R_x(A) . T(X, Y, Z) .
   T_ref . R_z(C)), which must not be the tool axis if C is to tilt the tool:
   here C tilts the tool axis in the meridional plane and A (the blisk about X)
   sets its angle about the blisk axis.
@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..machine.kinematics import AXES_5, axis_poses
+from ..cnc.kinematics import AXES_5, axis_poses
 
 #: K = T . CARRIER_IN_TOOL: a rotation by -pi/2 about the tool's y axis (K_x = T_z, K_z = -T_x)
 CARRIER_IN_TOOL = np.array([[0.0, 0.0, -1.0, 0.0],

@@ -40,7 +40,7 @@ from geometry_msgs.msg import Point, Pose, Quaternion
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from edm_planner.machine.kinematics import AXES_5
+from edm_planner.cnc.kinematics import AXES_5
 from edm_planner.planning.search import METHODS
 
 from conftest import CONFIG
