@@ -17,6 +17,9 @@ import igl
 import numpy as np
 import pytest
 
+from edm_planner.cnc.config import load_machine
+from edm_planner.cnc.timing import check_travel
+from edm_planner.cnc.trajectory import machine_axis_values
 from edm_planner.geometry.loader import load_geometry
 from edm_planner.interference.fast import FastChannelField
 from edm_planner.interference.pose_check import verify_poses
@@ -150,6 +153,23 @@ def test_the_proof_never_finds_an_electrode_closer_than_the_certificate(proven):
         assert t["certificate_lower_bound_mm"] >= 0.08 - 1e-9
         assert plan.metrics.clearance_exact[j] >= plan.metrics.clearance_lower_bound[j] - AGREEMENT_ACCURACY
 
+
+
+def test_the_whole_cycle_stays_within_the_reference_machines_travel(proven):
+    """Every leg, the clear leg to where channels are indexed included, fits config/machine.yaml's travel.
+
+    Rotor 37's clear position once lay at X = -308 mm (its hub and casing lines run on through the rig's
+    ducts and were taken as the part), beyond the 250 mm of X travel: the whole-blisk program then failed.
+    """
+    candidate, _ = proven
+    plan, cycle = candidate.pieces[0].plan, candidate.pieces[0].cycle
+    machine = load_machine(CONFIG / "machine.yaml")
+    assert [leg.phase for leg in cycle.legs][-1] == "clear"
+    for leg in cycle.legs:
+        q, _ = machine_axis_values(leg.samples, plan.axis_names, plan.final_pose, machine)
+        order = machine.joint_order(plan.axis_names)
+        names = tuple(plan.axis_names[i] for i in order)
+        check_travel(names, machine.limits_for(names), q[:, order], np.arange(len(q), dtype=float))
 
 def test_a_candidate_whose_certificate_overstates_is_refused(proven):
     """A bound above what the proof measured is named, surface and figures, and the candidate refused."""

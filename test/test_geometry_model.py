@@ -608,6 +608,31 @@ def test_nan_in_a_profile():
     expect_error(GeometryError, "hub_profile", "NaN", text=text.replace("[12.5, 100.0]", "[12.5, .nan]"))
 
 
+
+def test_part_axial_range_bounds_the_part_envelope(default, rotor37, default_doc):
+    # by default the profiles' and blades' whole range; Rotor 37 states its disk, not the rig's ducts
+    assert default.blisk.part_envelope == (-4.0, 29.0)
+    assert rotor37.blisk.part_envelope == (-4.8, 48.2)
+    assert rotor37.blisk.hub.x_range[0] < -228 and rotor37.blisk.hub.x_range[1] > 152
+    doc = dict(copy.deepcopy(default_doc), part_axial_range=[-1.5, 27.0])
+    g = load_geometry(text=dump(doc))
+    assert g.blisk.part_envelope == (-1.5, 27.0) and g.geometry_id != default.geometry_id
+    rebuilt = Blisk.from_dict(json.loads(json.dumps(g.blisk.to_dict())))
+    assert rebuilt.part_envelope == (-1.5, 27.0)
+
+
+@pytest.mark.parametrize("value, words", [
+    ([1.0], ("two numbers",)),
+    ("front", ("two numbers",)),
+    ([0.0, "x"], ("two numbers",)),
+    ([float("nan"), 30.0], ("finite",)),
+    ([20.0, -2.0], ("x_min < x_max",)),
+    ([0.0, 30.0], ("does not hold the blades", "-0.477")),     # the default blade starts at x = -0.477 mm
+])
+def test_bad_part_axial_range(value, words, default_doc):
+    doc = dict(copy.deepcopy(default_doc), part_axial_range=value)
+    expect_error(GeometryError, "part_axial_range", *words, text=dump(doc))
+
 def _in_metres(doc):
     for key in ("hub_profile", "shroud_profile"):
         doc[key] = [[x / 1000.0, r / 1000.0] for x, r in doc[key]]

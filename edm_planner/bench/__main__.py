@@ -9,6 +9,7 @@ import platform
 import resource
 import sys
 import time
+import traceback
 
 from ..environment import configure_process
 
@@ -38,16 +39,24 @@ def main(argv=None):
     logging.getLogger(__name__).warning("bench on %s", cpu_label(cpu))
     result = {"machine": {"python": platform.python_version(), "processor": platform.machine(), "cpu": cpu},
               "timestamp": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+    failed = []
     for name in args.only or sorted(SUITES):
         t = time.perf_counter()
-        result[name] = SUITES[name]()
+        try:
+            result[name] = SUITES[name]()
+        except Exception as e:           # one suite's failure loses neither the others' figures nor its cause
+            logging.getLogger(__name__).exception("suite %s failed", name)
+            result[name] = {"error": f"{type(e).__name__}: {e}", "traceback": traceback.format_exc()}
+            failed.append(name)
         result[name]["suite_s"] = round(time.perf_counter() - t, 2)
     result["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
     path = pathlib.Path(args.out)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(result, indent=2))
     logging.getLogger(__name__).warning("wrote %s:\n%s", path, json.dumps(result, indent=2))
-    return 0
+    if failed:
+        logging.getLogger(__name__).error("failed suites (their errors are in %s): %s", path, ", ".join(failed))
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

@@ -159,6 +159,10 @@ class Blisk:
         'parametric', 'sections' or 'mesh' (for the summary).
     knot_rule : str
         'chord' (default, accurate) or 'paper' (Liu 2024 eq. 15) for the face reconstruction.
+    part_axial_range : (float, float), optional
+        Where the part's material lies along X [mm]; it must hold the blades. None: the profiles' and the
+        blades' whole x range. Profiles that run on through a rig's ducts (NASA Rotor 37's hub and casing
+        lines reach 229 mm upstream) would otherwise put the cycle's clear position beyond a machine's travel.
     """
 
     blade_count: int
@@ -168,6 +172,7 @@ class Blisk:
     name: str = ""
     source: str = "parametric"
     knot_rule: str = "chord"
+    part_axial_range: tuple = None
     _cache: dict = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self):
@@ -179,6 +184,8 @@ class Blisk:
         overlap = wall_overlap(self.hub, self.shroud)
         object.__setattr__(self, "blade", extend_to_walls(self.blade, self.hub, self.shroud, overlap))
         self._validate_blade()
+        if self.part_axial_range is not None:
+            object.__setattr__(self, "part_axial_range", self._checked_part_range(self.part_axial_range))
 
     # -- validation -----------------------------------------------------------
     def _validate_blade(self):
@@ -213,6 +220,29 @@ class Blisk:
     def axial_range(self):
         """(x_min, x_max) of the blade [mm]."""
         return float(self.blade.x.min()), float(self.blade.x.max())
+
+    @property
+    def part_envelope(self):
+        """(x_min, x_max) [mm] within which the part's material lies: ``part_axial_range``, or by default the
+        hub's, shroud's and blades' whole x range."""
+        if self.part_axial_range is not None:
+            return tuple(self.part_axial_range)
+        blade = self.axial_range
+        return (float(min(self.hub.x_range[0], self.shroud.x_range[0], blade[0])),
+                float(max(self.hub.x_range[1], self.shroud.x_range[1], blade[1])))
+
+    def _checked_part_range(self, value):
+        try:
+            lo, hi = (float(v) for v in value)
+        except (TypeError, ValueError):
+            raise GeometryError(f"part_axial_range: expected two numbers [x_min, x_max] in mm, got {value!r}") from None
+        if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+            raise GeometryError(f"part_axial_range: expected finite x_min < x_max in mm, got [{lo!r}, {hi!r}]")
+        b0, b1 = self.axial_range
+        if lo > b0 + 1e-9 or hi < b1 - 1e-9:
+            raise GeometryError(f"part_axial_range: [{lo:g}, {hi:g}] mm does not hold the blades, which span "
+                                f"[{b0:.3f}, {b1:.3f}] mm")
+        return (lo, hi)
 
     @property
     def channel_height_range(self):
@@ -386,6 +416,7 @@ class Blisk:
                 "x": b.x.tolist(), "r": b.r.tolist(),
                 "theta_minus": b.theta_minus.tolist(), "theta_plus": b.theta_plus.tolist(),
             },
+            "part_axial_range": None if self.part_axial_range is None else list(self.part_axial_range),
         }
 
     @classmethod
@@ -400,7 +431,7 @@ class Blisk:
             shroud=RevolutionProfile(data["shroud_profile"], "shroud_profile"),
             blade=BladeSections(s["x"], s["r"], s["theta_minus"], s["theta_plus"]),
             name=data.get("name", ""), source=data.get("source", "sections"),
-            knot_rule=data.get("knot_rule", "chord"))
+            knot_rule=data.get("knot_rule", "chord"), part_axial_range=data.get("part_axial_range"))
 
 
 def _xr_theta(points):

@@ -11,6 +11,9 @@ YAML schema (mm, rad; file paths relative to the YAML's directory)::
       sections: {file: F, format: nasa_table | csv, length_unit: mm}
       mesh: F                             # or {file: F, length_unit: mm, section_count: 25, station_count: 81}
       knot_rule: chord                    # optional: chord (default) | paper (Liu 2024 eq. 15)
+    part_axial_range: [x_min, x_max]      # optional [mm]: where the part's material lies along X (it holds
+                                          # the blades; default: the profiles' and blades' x range); the
+                                          # cycle's clear position and index moves keep out of it
     electrode: {...}                      # optional, see ElectrodeDesign
 
 A document holding only the blisk keys loads with the default electrode design.
@@ -45,7 +48,7 @@ from .readers import read_nasa_meridional, read_nasa_table, read_sections_csv, u
 
 _log = logging.getLogger(__name__)
 
-TOP_KEYS = {"name", "blade_count", "hub_profile", "shroud_profile", "blade", "electrode"}
+TOP_KEYS = {"name", "blade_count", "hub_profile", "shroud_profile", "blade", "electrode", "part_axial_range"}
 BLADE_SOURCES = ("parametric", "sections", "mesh")
 #: largest YAML document accepted (inline or file) [bytes]
 MAX_YAML_BYTES = 4 * 1024 * 1024
@@ -413,7 +416,8 @@ def build_geometry(doc, files, source=""):
     name = doc.get("name", "")
     if not isinstance(name, str):
         raise GeometryError("name: must be a string")
-    blisk = Blisk(doc["blade_count"], hub, shroud, blade, name=name, source=blade_source, knot_rule=knot_rule)
+    blisk = Blisk(doc["blade_count"], hub, shroud, blade, name=name, source=blade_source, knot_rule=knot_rule,
+                  part_axial_range=doc.get("part_axial_range"))
     design = ElectrodeDesign.from_dict(doc.get("electrode"))
     design_given = doc.get("electrode") is not None
     # a design the file gives is checked now (its errors belong to the load); the default one on first use

@@ -30,8 +30,9 @@ axis bridge times each leg on its own and sends the whole cycle in order.
 After the retract a **clear** leg moves X alone on, away from the blisk, to the
 *clear position*: there the electrode's bounding sphere about its origin (the C
 axis' pivot: a C turn does not move it) lies wholly beyond a plane normal to X
-outside the part's axial envelope (the model's hub, shroud and blades extended by
-``envelope_margin``), by ``clearance``. A turns about X and Y, Z move in planes
+outside the part's axial envelope (``Blisk.part_envelope``: the geometry file's
+``part_axial_range``, else the hub, shroud and blades; extended by ``envelope_margin``),
+by ``clearance``. A turns about X and Y, Z move in planes
 normal to it, so at that X no move of A, C, Y or Z can bring the electrode to the
 part: channel indexes and tool changes happen there (:mod:`.program`), with that
 separation as their certificate (:class:`ClearZone`). The clear leg itself is
@@ -177,8 +178,8 @@ class ClearZone:
     X. The origin's W x is ``X + origin_x`` for axis value X (Huang eq. 2: ``R_x(A) T(X, Y, Z) T_final``), so
     the sphere's distance from the envelope's plane on the electrode's ``side`` is a function of X alone
     (:meth:`separation`), whatever A, C, Y and Z do: a lower bound of the distance to anything of the part
-    inside the envelope ``envelope`` (the model's hub, shroud and blades extended axially by the cycle's
-    ``envelope_margin``). ``clear_x`` is the clear position's X, where that separation is at least the
+    inside the envelope ``envelope`` (the part's axial extent, ``Blisk.part_envelope``, extended by the
+    cycle's ``envelope_margin``). ``clear_x`` is the clear position's X, where that separation is at least the
     cycle's ``clearance``. ``blade_gap``: the electrode's axial distance from the blades' range at the
     home point (the retract's end), a lower bound of its distance to every blade of the blisk along the
     clear leg (NaN where the electrode overlaps the blades' range there).
@@ -428,8 +429,8 @@ class CycleBuilder:
         verts = np.asarray(self.electrode.mesh.vertices, dtype=np.float64)
         radius = float(np.linalg.norm(verts, axis=1).max()) + float(self.design.chord_tolerance)
         blade = blisk.axial_range
-        lo = min(blisk.hub.x_range[0], blisk.shroud.x_range[0], blade[0]) - self.options.envelope_margin
-        hi = max(blisk.hub.x_range[1], blisk.shroud.x_range[1], blade[1]) + self.options.envelope_margin
+        lo = blisk.part_envelope[0] - self.options.envelope_margin
+        hi = blisk.part_envelope[1] + self.options.envelope_margin
         origin_x = float(self.electrode.final_pose[0, 3])
         probe = ClearZone(side, (float(lo), float(hi)), radius, origin_x, 0.0)
         # X where the separation is s: side * (X + origin_x) - radius - edge = s
