@@ -18,7 +18,8 @@ from edm_planner.cnc.config import default_machine_path, load_machine
 from edm_planner.cnc.kinematics import FiveAxisKinematics
 from edm_planner.nodes.axis_bridge import AxisBridgeNode
 from edm_planner.ros.conversions import pose_to_matrix
-from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode
+from edm_planner.nodes.geometry_loader import GeometryLoaderNode
+from edm_planner.ros.shared import LATCHED
 from edm_planner.nodes.trajectory_planner import TrajectoryPlannerNode
 
 from test_timing import quintic_peaks

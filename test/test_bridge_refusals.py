@@ -22,7 +22,7 @@ from trajectory_msgs.msg import JointTrajectory
 from edm_planner.geometry.frames import rotation_about_x
 from edm_planner.machining.cycle import Leg, MachiningCycle, ProcessReach
 from edm_planner.nodes.axis_bridge import AxisBridgeNode
-from edm_planner.nodes.geometry_loader import LATCHED
+from edm_planner.ros.shared import LATCHED
 from edm_planner.nodes.trajectory_planner import axis_path_msg, channel_plan_msg, pose_array_msg
 from edm_planner.records.certificate import META_KEY, record_digest
 from edm_planner.records.store import PlanStore, StoredPlan, cycle_to_record

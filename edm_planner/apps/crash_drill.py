@@ -41,7 +41,7 @@ from ..environment import configure_process
 # this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
 configure_process()
 
-from ..nodes.geometry_loader import config_directory
+from ..ros.shared import config_directory
 from ..ros import dds
 
 NODES = ("geometry_loader", "interference_checker", "trajectory_planner", "axis_bridge")

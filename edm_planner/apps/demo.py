@@ -51,7 +51,7 @@ configure_process()
 
 from ..geometry.frames import rotation_about_x
 from ..interference import SURFACES as SURFACE_NAMES
-from ..nodes.geometry_loader import LATCHED, config_directory
+from ..ros.shared import LATCHED, config_directory
 from ..records.plan_export import read_plan
 from ..ros.action_client import LockedActionClient
 from ..ros.conversions import msg_to_mesh

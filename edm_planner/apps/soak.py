@@ -43,7 +43,7 @@ from ..environment import CACHE_ROOT, configure_process
 configure_process()
 
 from ..geometry.loader import parse_document
-from ..nodes.geometry_loader import config_directory
+from ..ros.shared import config_directory
 from ..ros.dds import loopback_unless_told
 from .demo import Bringup
 

@@ -118,7 +118,7 @@ from ..paths import export_path, open_for_export
 from ..records.certificate import certificate_digest, check_digest
 from ..records.store import PlanStoreError, plan_cycle_of_stored
 from ..ros.conversions import error_code, msg_to_cycle
-from .geometry_loader import LATCHED
+from ..ros.shared import LATCHED
 from ..ros.runtime import answer, declare_plan_store, default_machine_file, end_canceled, spin_node
 
 

@@ -28,16 +28,13 @@ Topics (TRANSIENT_LOCAL, depth 1): ``geometry`` (edm_planner_msgs/BliskGeometry)
 import json
 import logging
 import os
-import pathlib
 import threading
 
-from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 from edm_planner_msgs.msg import BliskGeometry
 from edm_planner_msgs.srv import LoadGeometry
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from visualization_msgs.msg import MarkerArray
 
 from ..ros.startup import prepare_process
@@ -50,21 +47,12 @@ from ..errors import EdmError, ErrorCode
 from ..geometry.blisk import CHANNEL_SURFACES
 from ..geometry.loader import FileLimits, GeometryMemo, load_geometry
 from ..ros.runtime import spin_node
+from ..ros.shared import LATCHED, config_directory
 from ..ros.conversions import error_code, matrix_to_pose, mesh_marker, mesh_to_msg, summary_to_msg
 
 #: QoS of data that late joiners need (like tf_static)
-LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                     reliability=ReliabilityPolicy.RELIABLE)
 COLOURS = {"suction": (0.2, 0.4, 0.9, 0.6), "pressure": (0.9, 0.3, 0.2, 0.6),
            "hub": (0.5, 0.5, 0.5, 0.5), "shroud": (0.6, 0.6, 0.3, 0.3)}
-
-
-def config_directory():
-    """The installed config directory (share/edm_planner/config), or the source tree's."""
-    try:
-        return pathlib.Path(get_package_share_directory("edm_planner")) / "config"
-    except (PackageNotFoundError, ValueError, KeyError, OSError):
-        return pathlib.Path(__file__).resolve().parents[2] / "config"
 
 
 class GeometryLoaderNode(Node):

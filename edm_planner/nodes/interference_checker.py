@@ -53,7 +53,7 @@ from ..cnc.kinematics import AXES_5, FiveAxisKinematics
 from ..ros.runtime import answer, spin_node
 from ..ros.conversions import (design_override, error_code, msg_to_mesh, pose_to_matrix, poses_to_arrays,
                           quaternions_to_matrices)
-from .geometry_loader import LATCHED
+from ..ros.shared import LATCHED
 
 
 class InterferenceCheckerNode(Node):

@@ -86,7 +86,7 @@ from ..records.store import (PlanStoreError, cycle_from_record, plan_to_stored, 
 from ..ros.conversions import cycle_fields, design_override, error_code, machining_figures, matrix_to_pose
 from ..ros.runtime import answer, declare_plan_store, default_machine_file, end_canceled, spin_node
 from ..roughing import RoughingOptions, plan_roughing, roughing_plan_id
-from .geometry_loader import LATCHED
+from ..ros.shared import LATCHED
 
 
 def plan_options(settings, default_budget):

@@ -6,7 +6,9 @@
   of a service callback into an error code and a message (``answer``), the plan store and machine file
   parameters;
 * :mod:`.conversions` -- messages <-> numpy and the core's types, in one place;
-* :mod:`.action_client` -- an action client that closes rclpy's goal/result race.
+* :mod:`.action_client` -- an action client that closes rclpy's goal/result race;
+* :mod:`.shared` -- the latched QoS and the config directory, which the nodes and the programs share;
+* :mod:`.startup` -- a process's set-up before ``rclpy.init``.
 
 The nodes themselves are in :mod:`edm_planner.nodes`, the programs that drive them in :mod:`edm_planner.apps`.
 Importing this package does nothing else.
