@@ -19,14 +19,21 @@ NUMBA_CACHE_ROOT = os.path.join(CACHE_ROOT, "numba")
 PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
 
 
+#: what a module that defines kernels (compiled code numba caches) contains; a module that only calls numba
+#: (``numba.set_num_threads``) or names it in a comment changes no compiled code
+KERNEL_MARKERS = (b"njit", b"numba.jit", b"@numba.", b"intrinsic", b"overload", b"cfunc", b"vectorize")
+
+
 def kernel_sources_digest(package=PACKAGE_DIR):
-    """A digest of every module of the package that mentions numba (about 2 ms).
+    """A digest of every module of the package that defines numba kernels (about 2 ms).
 
     numba's cache checks a kernel against its own file's time stamp only, not
     against the files its compiled code was built from (the intrinsics in
     ``interference/cell_simd.py``, kernels of other modules it calls): after
     an edit there, the cached code would be stale. One cache directory per
-    content of all kernel sources rules that out.
+    content of all kernel sources rules that out. An edit of a module that
+    defines no kernel (``KERNEL_MARKERS``) keeps the directory: recompiling
+    every kernel costs a new process about a minute.
     """
     digest = hashlib.sha256()
     for folder, subfolders, files in sorted(os.walk(package)):
@@ -34,7 +41,7 @@ def kernel_sources_digest(package=PACKAGE_DIR):
         for name in sorted(f for f in files if f.endswith(".py")):
             with open(os.path.join(folder, name), "rb") as source:
                 text = source.read()
-            if b"numba" in text:
+            if any(marker in text for marker in KERNEL_MARKERS):
                 digest.update(name.encode() + b"\0" + text)
     return digest.hexdigest()[:16]
 

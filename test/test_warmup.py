@@ -25,7 +25,7 @@ def test_a_bad_part_is_refused_with_a_usage_line():
 def test_the_kernel_cache_directory_follows_every_kernel_source(tmp_path):
     """numba checks a cached kernel against its own file only; the cache directory is named by all kernel
     sources, so an edit of an intrinsic another file's kernels inline (cell_simd.py) gives a new one, and
-    an edit of a module without numba does not."""
+    an edit of a module without kernels does not."""
     import os
     import shutil
 
@@ -37,6 +37,11 @@ def test_the_kernel_cache_directory_follows_every_kernel_source(tmp_path):
     assert first == kernel_sources_digest(str(REPO / "edm_planner"))
     assert os.environ["NUMBA_CACHE_DIR"] == os.path.join(NUMBA_CACHE_ROOT, first)
     (package / "paths.py").write_text((package / "paths.py").read_text() + "\n# no kernel here\n")
+    assert kernel_sources_digest(str(package)) == first
+    # a module that calls numba but compiles nothing (the set designer: numba.set_num_threads)
+    designer = package / "machining" / "electrode_set.py"
+    assert b"numba.set_num_threads" in designer.read_bytes()
+    designer.write_text(designer.read_text() + "\n# an edit of the set designer\n")
     assert kernel_sources_digest(str(package)) == first
     simd = package / "interference" / "cell_simd.py"
     simd.write_text(simd.read_text() + "\n# an edit of the intrinsic\n")
