@@ -223,6 +223,8 @@ class ElectrodeSet:
 
 #: insets of the electrodes' axial range from the closed channel's ends tried, as shares of its length
 EDGE_INSETS = (0.0005, 0.001, 0.002, 0.005)
+#: how finely the inset is bisected between a share of EDGE_INSETS that fails and the next that designs
+EDGE_INSET_RESOLUTION = 0.0002
 
 
 def set_id_for(geometry_id, channel, plan_options, options, cycle_options, process=None, process_resolution=0.5,
@@ -381,13 +383,24 @@ class SetDesigner:
         """
         fx0, fx1 = self.blisk.full_span_axial_range
         length = fx1 - fx0
-        for share in EDGE_INSETS:
-            rng = (fx0 + share * length, fx1 - share * length)
+
+        def designs(share):
             try:
-                self._designed(replace(self.base, axial_range=rng), "main")
-                return rng
+                self._designed(replace(self.base, axial_range=(fx0 + share * length, fx1 - share * length)), "main")
+                return True
             except EdmError:
-                continue
+                return False
+
+        failed = None
+        for share in EDGE_INSETS:
+            if designs(share):
+                # between a share that fails and one that designs, the thinnest that designs (a faceted or measured
+                # blade's walls may stop covering the span a little inside its sections' extent)
+                while failed is not None and share - failed > EDGE_INSET_RESOLUTION:
+                    mid = 0.5 * (failed + share)
+                    failed, share = (failed, mid) if designs(mid) else (mid, share)
+                return (fx0 + share * length, fx1 - share * length)
+            failed = share
         return None
 
     # -- helpers -----------------------------------------------------------------------------
