@@ -379,7 +379,9 @@ class SetDesigner:
 
         The electrode stops where both blade walls still span hub to shroud; the
         default design keeps 0.5 % inside that range (the spline footprints' corners),
-        which leaves end strips of stock, so the set tries thinner insets first.
+        which leaves end strips of stock, so the set tries thinner insets first
+        (``EDGE_INSETS``), and between one that fails and the next that designs
+        bisects for the thinnest that designs (``EDGE_INSET_RESOLUTION``).
         """
         fx0, fx1 = self.blisk.full_span_axial_range
         length = fx1 - fx0
