@@ -469,7 +469,11 @@ class SetDesigner:
 
     # -- sizing one piece ------------------------------------------------------------------------
     def size_piece(self, piece):
-        """Smallest radial, then smallest circumferential reduction with a certified plan; False if none."""
+        """Smallest radial, then smallest circumferential reduction with a certified plan; False if none.
+
+        Then the piece's cycle; where it does not certify, the smallest larger radial reduction with which it
+        does (:meth:`_radial_for_the_cycle`); else the piece keeps the failing cycle, which rejects its candidate.
+        """
         o = self.options
         # start designs, most promising first; a reduction that leaves no electrode (a narrow half of a
         # left/right split) is skipped at the cost of a design, not of a plan
@@ -482,7 +486,7 @@ class SetDesigner:
                 break
         if plan is None:
             return False
-        best = (plan, design)
+        best, r_start = (plan, design), r_hi
         self._sizing = "radial"
         lo = 0.0                                   # radial first: the least shroud stock
         if r_hi > 0:                               # none at all leaves none (and needs no plunges)
@@ -494,13 +498,55 @@ class SetDesigner:
         self._sizing = "circumferential"
         h_hi, best = self._bisect(0.0, h_hi, o.circumferential_resolution, lambda h: self._plan(piece, h, r_hi), best)
         piece.plan, piece.design = best
+        piece.cycle = self._cycle(piece, *best)
+        if not piece.cycle.certified and r_start > r_hi:
+            self._radial_for_the_cycle(piece, h_hi, r_hi, r_start)
         add_exact_clearance(piece.plan, self.blisk, self.field)
-        electrode = self._electrode(piece)
-        piece.volume = float(electrode.mesh.volume)
-        builder = CycleBuilder(self.field, electrode, piece.design, piece.plan.axis_names, self.cycle_options)
-        margin = min(self.plan_options.search.margin_blade, self.plan_options.search.margin_hub_shroud)
-        piece.cycle = builder.build(piece.plan.samples, margin, np.asarray(piece.plan.metrics.clearance_lower_bound))
+        piece.volume = float(self._electrode(piece).mesh.volume)
         return True
+
+    def _cycle(self, piece, plan, design):
+        """The certified cycle (approach, feed, copy processing, return, retract, clear) of a piece's plan."""
+        electrode = self._electrode(replace(piece, design=design))
+        builder = CycleBuilder(self.field, electrode, design, plan.axis_names, self.cycle_options)
+        margin = min(self.plan_options.search.margin_blade, self.plan_options.search.margin_hub_shroud)
+        return builder.build(plan.samples, margin, np.asarray(plan.metrics.clearance_lower_bound))
+
+    def _radial_for_the_cycle(self, piece, h, r_lo, r_hi):
+        """A piece whose feed plans but whose cycle does not certify: the smallest radial reduction in
+        (r_lo, r_hi] whose plan and cycle both do, if any (the piece keeps its failing cycle otherwise).
+
+        The cycle can fail where the feed does not: after the retract the clear leg moves X alone out of the
+        part, through an annulus that may narrow beyond the blades (a front piece of three axial pieces on the
+        default blisk: the hub rises and the shroud falls ahead of the leading edge); a shorter electrode
+        (more radial reduction, which copy processing's plunge takes) passes it.
+        """
+        self._sizing = "radial (the cycle)"
+        failing = piece.cycle.message
+
+        def attempt(r):
+            plan, design = self._plan(piece, h, r)
+            if plan is None:
+                return None
+            cycle = self._cycle(piece, plan, design)
+            hh, rr, _ = piece.tried[-1]
+            piece.tried[-1] = (hh, rr, "certified; cycle " + ("certified" if cycle.certified
+                                                                 else f"not certified: {cycle.message[:120]}"))
+            return (plan, design, cycle) if cycle.certified else None
+
+        best = attempt(r_hi)
+        if best is None:
+            return
+        while r_hi - r_lo > self.options.radial_resolution and not self._out_of_time():
+            mid = 0.5 * (r_lo + r_hi)
+            found = attempt(mid)
+            if found is None:
+                r_lo = mid
+            else:
+                r_hi, best = mid, found
+        piece.plan, piece.design, piece.cycle = best
+        _log.info("%s electrode: radial reduction %.3f mm for a certified cycle (with less: %s)", piece.label,
+                  r_hi, failing)
 
     def _designed(self, design, electrode_id):
         """The piece's electrode of a design (in a list, as plan_channel takes it), designed once."""
