@@ -9,9 +9,15 @@ from edm_planner.apps.soak import run_soak, schedule
 
 #: private memory (RssAnon, what a leak grows; the distance field is mapped from its cache file, its pages
 #: count in VmRSS as queries touch them) a node may gain over the short soak's calls after the first 25
-#: [MB]: the loader and the checker nothing to speak of; the planner rises by about 10 MB with each of its first few plans (three
-#: here), then levels off (``make soak``: within 625 .. 656 MB over 1000 further calls and 50 plans)
-RSS_GROWTH_BOUND_MB = {"geometry_loader": 5.0, "interference_checker": 5.0, "trajectory_planner": 40.0}
+#: [MB]: the loader nothing to speak of; the checker a step of up to about 5 MB once (most likely when a call first lands on
+#: another of its executor's 8 threads, which glibc gives its own malloc arena; on a fresh clone 146.8 ->
+#: 151.8 MB between calls 25 and 50, then 151.9 at call 100); the planner rises by about 10 MB with each of its
+#: first few plans (three here), then levels off (``make soak``: within 625 .. 656 MB over 1000 further calls
+#: and 50 plans)
+RSS_GROWTH_BOUND_MB = {"geometry_loader": 5.0, "interference_checker": 12.0, "trajectory_planner": 40.0}
+#: what a leak shows and a one-time step does not: growth over the second half of the calls (50 -> 100), once
+#: every path of the loader and the checker has run [MB] (the planner's third new plan falls there)
+LATE_GROWTH_BOUND_MB = {"geometry_loader": 1.0, "interference_checker": 2.0}
 
 
 def test_the_schedule_mixes_distinct_and_repeated_plans_among_the_checks():
@@ -39,3 +45,7 @@ def test_a_short_soak_keeps_memory_flat_and_answers_every_call(tmp_path, field_c
     assert lat["plan_new"]["count"] == 3 and lat["plan_stored"]["count"] == 2   # each distinct request planned once
     for node, growth in result["private_growth_mb"].items():
         assert growth <= RSS_GROWTH_BOUND_MB[node], f"{node} grew by {growth} MB: {result['memory']}"
+    at = {m["calls"]: m["private_mb"] for m in result["memory"]}
+    for node, bound in LATE_GROWTH_BOUND_MB.items():
+        late = at[100][node] - at[50][node]
+        assert late <= bound, f"{node} grew by {late:.1f} MB over calls 50 to 100: {result['memory']}"
