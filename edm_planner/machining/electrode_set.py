@@ -507,7 +507,7 @@ class SetDesigner:
 
     def _cycle(self, piece, plan, design):
         """The certified cycle (approach, feed, copy processing, return, retract, clear) of a piece's plan."""
-        electrode = self._electrode(replace(piece, design=design))
+        electrode = _pick_electrode(self._designed(design, piece.electrode_id), piece.electrode_id)
         builder = CycleBuilder(self.field, electrode, design, plan.axis_names, self.cycle_options)
         margin = min(self.plan_options.search.margin_blade, self.plan_options.search.margin_hub_shroud)
         return builder.build(plan.samples, margin, np.asarray(plan.metrics.clearance_lower_bound))
@@ -525,26 +525,21 @@ class SetDesigner:
         failing = piece.cycle.message
 
         def attempt(r):
+            """(found or None, None) in :meth:`_bisect`'s form: found = (plan, design, cycle) when both certify."""
             plan, design = self._plan(piece, h, r)
             if plan is None:
-                return None
+                return None, None
             cycle = self._cycle(piece, plan, design)
             hh, rr, _ = piece.tried[-1]
             piece.tried[-1] = (hh, rr, "certified; cycle " + ("certified" if cycle.certified
                                                                  else f"not certified: {cycle.message[:120]}"))
-            return (plan, design, cycle) if cycle.certified else None
+            return ((plan, design, cycle) if cycle.certified else None), None
 
         best = attempt(r_hi)
-        if best is None:
+        if best[0] is None:
             return
-        while r_hi - r_lo > self.options.radial_resolution and not self._out_of_time():
-            mid = 0.5 * (r_lo + r_hi)
-            found = attempt(mid)
-            if found is None:
-                r_lo = mid
-            else:
-                r_hi, best = mid, found
-        piece.plan, piece.design, piece.cycle = best
+        r_hi, best = self._bisect(r_lo, r_hi, self.options.radial_resolution, attempt, best)
+        piece.plan, piece.design, piece.cycle = best[0]
         _log.info("%s electrode: radial reduction %.3f mm for a certified cycle (with less: %s)", piece.label,
                   r_hi, failing)
 
@@ -568,10 +563,7 @@ class SetDesigner:
         return hi, best
 
     def _electrode(self, piece):
-        for e in self._designed(piece.design, piece.electrode_id):
-            if e.electrode_id == piece.electrode_id:
-                return e
-        raise EdmError(ErrorCode.INTERNAL, f"no electrode {piece.electrode_id!r} in its own design")
+        return _pick_electrode(self._designed(piece.design, piece.electrode_id), piece.electrode_id)
 
     # -- the removal proof of a candidate ------------------------------------------------------
     def sweeps(self, candidate):
@@ -755,6 +747,13 @@ class SetDesigner:
                                       for p in cand.pieces))
         self._report((index + 0.95) / count, f"{cand.name}: material-removal proof")
         judge(cand, self.prove(cand), self.options)
+
+
+def _pick_electrode(electrodes, electrode_id):
+    for e in electrodes:
+        if e.electrode_id == electrode_id:
+            return e
+    raise EdmError(ErrorCode.INTERNAL, f"no electrode {electrode_id!r} in its own design")
 
 
 _WORKER = None
