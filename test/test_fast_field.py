@@ -479,6 +479,58 @@ def test_blocked_pose_kernels_equal_the_per_point_paths_on_every_kind_of_point(d
 
 
 
+def test_marked_nodes_carry_a_lower_bound_of_their_value():
+    """A node marked for the exact solver is a NaN that carries floor(|value| / q) + 1 (q = 2^-18 mm):
+    decoded, a lower bound of |value| within q; beyond the accuracy band, or a plain NaN, nothing."""
+    from edm_planner.interference.field_build import _carrying_nan
+    from edm_planner.interference.field_params import NODE_QUANTUM
+
+    flat = np.array([0.7, -1.25, 0.0, 2.5, 0.1234567, np.nan], dtype=np.float32)
+    raw = flat.astype(np.float64)
+    bits = flat.view(np.uint32).copy()
+    for k in range(5):
+        bits[k] = _carrying_nan(flat[k], ACCURATE_WITHIN)
+    carried = bits.view(np.float32)
+    assert np.isnan(carried).all()
+    told = np.array([field_query._node_magnitude(carried, bits, k) for k in range(6)])
+    inside = np.abs(raw[:5]) <= ACCURATE_WITHIN
+    assert (told[:5][inside] <= np.abs(raw[:5][inside])).all()
+    assert (np.abs(raw[:5][inside]) - told[:5][inside] < NODE_QUANTUM).all()
+    assert told[3] == -1.0 and told[5] == -1.0                 # 2.5 mm: not carried; a plain NaN tells nothing
+    # a number tells its own magnitude, less its float32 rounding
+    plain = np.array([0.3, -0.2, 3.0], dtype=np.float32)
+    told = [field_query._node_magnitude(plain, plain.view(np.uint32), k) for k in range(3)]
+    assert 0.3 - 1e-7 < told[0] <= abs(float(plain[0])) and told[1] <= 0.2 and told[2] == -1.0
+
+
+def test_pose_minimum_skips_exact_solves_that_cannot_attain_it(default, field):
+    """pose_clearances solves a point in a cell marked for the exact solver only where its bound (the
+    nodes' unsigned values less their distance and the field's error bound) does not clear the minimum:
+    near the final pose most of them are skipped, and the minima and their points are bit for bit those
+    of solving every point (margin inf), and of the per-point values, also for poses that penetrate."""
+    e = default.electrodes[0]
+    pts = np.asarray(e.mesh.vertices)
+    rng = np.random.default_rng(5)
+    for spread in (0.05, 0.4):
+        poses = np.repeat(e.final_pose[None], 24, axis=0)
+        poses[:, :3, :3] = Rotation.from_rotvec(rng.normal(scale=spread / 100, size=(24, 3))).as_matrix() @ poses[0, :3, :3]
+        poses[:, :3, 3] += rng.normal(scale=spread, size=(24, 3))
+        args = field._plain_args(0)
+        low, arg, solved = field_query._pose_kernel(poses, pts, field.skip_margin, *args)
+        every, every_arg, all_solves = field_query._pose_kernel(poses, pts, np.inf, *args)
+        np.testing.assert_array_equal(low, every)
+        np.testing.assert_array_equal(arg, every_arg)
+        ref = field.posed_clearances(poses, pts)
+        np.testing.assert_array_equal(low, ref.min(axis=1))
+        np.testing.assert_array_equal(ref[np.arange(24)[:, None], arg, np.arange(4)], low)
+        if spread == 0.05:
+            assert all_solves.mean() > 50                            # the case: marked cells are met
+            assert solved.sum() < 0.5 * all_solves.sum()
+            assert (low.min(axis=1) > -0.1).all()
+        else:
+            assert (low.min(axis=1) < -0.3).any() and all_solves.sum() > 0   # penetrating poses too
+
+
 def test_cache_round_trip_and_corrupt_file(default, tmp_path, caplog):
     b = default.blisk
     built = coarse_field(b, tmp_path, "geom-1")

@@ -37,7 +37,7 @@ def find_span(knots, n_ctrl, t):
     return lo
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True)
 def basis3(t, i, x, out):
     """The 4 non-zero cubic basis functions ``N_{i-3..i}`` at x and their first two derivatives.
 
@@ -88,7 +88,7 @@ def new_work():
     return (np.empty((3, 4)), np.empty((3, 4)), np.empty((6, 3)))
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True)
 def surface_eval(cp, tu, tv, u, v, work):
     """S, S_u, S_v, S_uu, S_uv, S_vv at (u, v) into ``work[2]`` (6, 3).
 

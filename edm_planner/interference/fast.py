@@ -310,11 +310,18 @@ class FastChannelField:
         """
         return WallFeatures.from_blisk(self.blisk)
 
+    @property
+    def skip_margin(self):
+        """What ``pose_clearances`` takes off the node values' bound before it skips an exact solve [mm]:
+        the field's error bound (the nodes' values against the solver's) and 1 nm of rounding."""
+        return float(self.error_bound) + 1e-6
+
     def pose_clearances(self, poses, points, channel=0):
         """Per pose and surface: the minimum signed distance over the electrode points.
 
         Transform, lookup and minimum run in one numba loop (no (P, M, 3)
-        temporaries).
+        temporaries). A point in a cell marked for the exact solver is solved
+        only where it can attain a minimum (``skip_margin``): the same result.
 
         Parameters
         ----------
@@ -332,7 +339,8 @@ class FastChannelField:
             Index of the electrode point that attains it.
         """
         poses, pts = _poses_and_points(poses, points, "pose_clearances")
-        return _pose_kernel(poses, pts, *self._plain_args(channel))
+        best, arg, _ = _pose_kernel(poses, pts, self.skip_margin, *self._plain_args(channel))
+        return best, arg
 
     def exact_pose_clearances(self, poses, points, channel=0):
         """Per pose and surface: the exact minimum signed distance over the electrode points.

@@ -21,7 +21,7 @@ from ..geometry.spline_kernels import new_work, project_edge, surface_eval, uv_a
 from ..geometry.frames import cylindrical_to_cartesian
 from .exact_solvers import _behind, _fill_profile_table, _on_edge, _solve_node
 from .field_layout import uv_starts
-from .field_params import ACCURATE_WITHIN, _NEWTON_TOL
+from .field_params import ACCURATE_WITHIN, NAN_BITS, NODE_QUANTUM, _NEWTON_TOL
 
 
 @numba.njit(cache=True)
@@ -277,7 +277,8 @@ def _jump(a, b, length, tol, far, far_tol):
 
 
 @numba.njit(cache=True)
-def _flag_nodes(grid, edge, params, shape, curvature_tol, edge_curvature_tol, accurate_within, jump_tol):
+def _flag_nodes(grid, edge, params, shape, curvature_tol, edge_curvature_tol, accurate_within, jump_tol,
+                carry_within):
     """Mark nodes whose cells trilinear interpolation does not represent (NaN in place).
 
     A node is marked for a face where the value jumps to a neighbour (more
@@ -289,8 +290,9 @@ def _flag_nodes(grid, edge, params, shape, curvature_tol, edge_curvature_tol, ac
     smoothly curved field), or more than ``edge_curvature_tol`` where the
     node or a neighbour has its closest point on an edge of the face (there
     the field bends sharply between nodes, across the normal plane of the
-    edge, and the error can reach a quarter). Returns the number of marked
-    (node, face) pairs.
+    edge, and the error can reach a quarter). A marked node becomes a NaN that
+    carries its unsigned value where that lies within ``carry_within``
+    (``_carrying_nan``). Returns the number of marked (node, face) pairs.
     """
     nx, nr, nt = shape.nx, shape.nr, shape.nt
     mark = np.zeros((nx, nr, nt, 2), dtype=np.uint8)
@@ -338,16 +340,29 @@ def _flag_nodes(grid, edge, params, shape, curvature_tol, edge_curvature_tol, ac
                         tol = edge_curvature_tol
                     if s > tol:
                         mark[ix, ir, it, face] = 1
+    bits = grid.view(np.uint32)
     for ix in range(nx):
         c = 0
         for ir in range(nr):
             for it in range(nt):
                 for face in range(2):
                     if mark[ix, ir, it, face]:
-                        grid[ix, ir, it, face] = np.nan
+                        bits[ix, ir, it, face] = _carrying_nan(grid[ix, ir, it, face], carry_within)
                         c += 1
         count_x[ix] = c
     return count_x.sum()
+
+
+@numba.njit(cache=True)
+def _carrying_nan(value, carry_within):
+    """The bits of a quiet NaN that carries a lower bound of ``|value|`` (``field_params.NODE_QUANTUM``).
+
+    Only values within ``carry_within`` mm (solved nodes, not the coarse grid's interpolation) are carried.
+    """
+    mag = abs(float(value))
+    if not mag <= carry_within:
+        return np.uint32(NAN_BITS)
+    return np.uint32(NAN_BITS | (int(math.floor(mag / NODE_QUANTUM)) + 1))
 
 
 def face_seeds(face, points, near_cut):
@@ -455,7 +470,8 @@ def build_tables(blisk, params, shape, splines, hub, shroud, band, curvature_tol
                                    scales, diag, grid, edge)
     times["fine_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    flagged = _flag_nodes(grid, edge, params, shape, curvature_tol, edge_curvature_tol, ACCURATE_WITHIN + 0.25, 0.05)
+    flagged = _flag_nodes(grid, edge, params, shape, curvature_tol, edge_curvature_tol, ACCURATE_WITHIN + 0.25, 0.05,
+                          ACCURATE_WITHIN)
     del edge
     times["flag_s"] = time.perf_counter() - t
 

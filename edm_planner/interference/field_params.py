@@ -20,11 +20,20 @@ from numpy.polynomial import chebyshev, polynomial
 
 
 #: format of the cached arrays; bump when the layout or the fill changes
-CACHE_VERSION = "edm_planner.fast_field/5"
+CACHE_VERSION = "edm_planner.fast_field/7"
 
 
 #: accuracy band the error bound is measured in [mm]
 ACCURATE_WITHIN = 2.0
+
+
+#: A node marked for the exact solver is a quiet NaN whose low 22 mantissa bits carry n = floor(|value| / q) + 1
+#: (q = ``NODE_QUANTUM`` mm; n = 0, the plain NaN: nothing carried), for nodes solved within
+#: ``ACCURATE_WITHIN`` of the face: (n - 1) q is a lower bound of the node's unsigned distance, from which
+#: the pose minimum bounds a point's distance without solving it (``field_query._unsigned_bound``).
+NODE_QUANTUM = 2.0 ** -18
+NAN_BITS = 0x7FC00000
+PAYLOAD_MASK = 0x3FFFFF
 
 
 _TWO_PI = 2.0 * math.pi

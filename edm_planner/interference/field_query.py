@@ -19,8 +19,8 @@ import numba
 import numpy as np
 
 from ..geometry.spline_kernels import new_work
-from .field_params import ACCURATE_WITHIN, _ATAN, _TWO_PI, named_args
-from .exact_solvers import _exact_blade, _exact_surface, _profile_signed
+from .field_params import ACCURATE_WITHIN, NODE_QUANTUM, PAYLOAD_MASK, _ATAN, _TWO_PI, named_args
+from .exact_solvers import _blade_behind, _exact_blade, _exact_surface, _profile_signed
 from .cell_simd import cell_values
 from .prefetch import prefetch
 
@@ -119,14 +119,13 @@ def _trilinear(flat, shape, gx, gr, gt, face):
     return acc
 
 
-@numba.njit(cache=True)
-def _slow_point(x, y, z, channel_angle, flat, hs, params, shape, tables, work):
-    """The general path of a query (any point): returns (suction, pressure, hub, shroud).
+@numba.njit(cache=True, inline="always")
+def _slow_parts(x, y, z, channel_angle, flat, hs, params, shape, tables):
+    """``_slow_point`` up to its exact solves: (s, p, h, c, xq, rq, tq, th, rho, gap, rect, outside, qx, qr, qt).
 
-    Inside the grid: trilinear, or the exact solver in cells marked for it.
-    Outside: the conservative lower bound ``max(value at the nearest grid
-    point q - |p - q|, distance to the faces' (x, r) bounding box)``. Hub and
-    shroud: the table, or the exact profile distance outside it.
+    s and p are NaN where the cell is marked for the exact solver (the solve
+    is at (xq, rq, tq), the nearest grid point); outside the grid the caller
+    takes ``max(value - gap, rect)``.
     """
     rho = math.sqrt(y * y + z * z)
     th = math.atan2(z, y) - channel_angle
@@ -141,11 +140,8 @@ def _slow_point(x, y, z, channel_angle, flat, hs, params, shape, tables, work):
     rq = params.r0 + qr * params.hr
     tq = params.t0 + qt * params.ht
     s = _trilinear(flat, shape, qx, qr, qt, 0)
-    if s != s:
-        s = _exact_blade(0, xq, rq, tq, params, shape, tables, work)
     p = _trilinear(flat, shape, qx, qr, qt, 1)
-    if p != p:
-        p = _exact_blade(1, xq, rq, tq, params, shape, tables, work)
+    gap, rect = 0.0, 0.0
     if outside:
         dx = x - xq
         dy = rho * math.cos(th) - rq * math.cos(tq)
@@ -155,8 +151,6 @@ def _slow_point(x, y, z, channel_angle, flat, hs, params, shape, tables, work):
         ex = max(params.fx0 - x, 0.0, x - params.fx1)
         er = max(params.fr0 - rho, 0.0, rho - params.fr1)
         rect = math.sqrt(ex * ex + er * er)
-        s = max(s - gap, rect)
-        p = max(p - gap, rect)
     hx = (x - params.hx0) / params.hhx
     hr = (rho - params.hr0) / params.hhr
     nhx, nhr = shape.nhx, shape.nhr
@@ -172,7 +166,66 @@ def _slow_point(x, y, z, channel_angle, flat, hs, params, shape, tables, work):
     else:
         h = _profile_signed(tables.hub_xb, tables.hub_c, tables.hub_b, 1.0, x, rho)
         c_ = _profile_signed(tables.shroud_xb, tables.shroud_c, tables.shroud_b, -1.0, x, rho)
-    return s, p, h, c_
+    return s, p, h, c_, xq, rq, tq, th, rho, gap, rect, outside, qx, qr, qt
+
+
+@numba.njit(cache=True)
+def _slow_point(x, y, z, channel_angle, flat, hs, params, shape, tables, work):
+    """The general path of a query (any point): returns (suction, pressure, hub, shroud).
+
+    Inside the grid: trilinear, or the exact solver in cells marked for it.
+    Outside: the conservative lower bound ``max(value at the nearest grid
+    point q - |p - q|, distance to the faces' (x, r) bounding box)``. Hub and
+    shroud: the table, or the exact profile distance outside it.
+    """
+    s, p, h, c, xq, rq, tq, _, _, gap, rect, outside, _, _, _ = _slow_parts(x, y, z, channel_angle, flat, hs, params,
+                                                                            shape, tables)
+    if s != s:
+        s = _exact_blade(0, xq, rq, tq, params, shape, tables, work)
+    if p != p:
+        p = _exact_blade(1, xq, rq, tq, params, shape, tables, work)
+    if outside:
+        s = max(s - gap, rect)
+        p = max(p - gap, rect)
+    return s, p, h, c
+
+
+@numba.njit(cache=True, inline="always")
+def _node_magnitude(flat, bits, k):
+    """A lower bound of |value| at flat index k of the blade grid [mm], or -1.0 where the node tells none.
+
+    A number within ``ACCURATE_WITHIN`` (solved; less its float32 rounding), or
+    the bound a marked node's NaN carries (``field_build._carrying_nan``).
+    """
+    v = flat[k]
+    if v == v:
+        m = abs(float(v))
+        return m * (1.0 - 2.0 ** -23) if m <= ACCURATE_WITHIN else -1.0
+    n = bits[k] & PAYLOAD_MASK
+    return (n - 1) * NODE_QUANTUM if n > 0 else -1.0
+
+
+@numba.njit(cache=True)
+def _unsigned_bound(face, flat, bits, shape, params, x, rho, th, qx, qr, qt):
+    """A lower bound of the unsigned distance to wall ``face`` at (x, rho, th) inside the grid [mm].
+
+    The unsigned distance is 1-Lipschitz: at least ``|value at node c| - |p - c|``
+    for each of the cell's 8 nodes that tells its value (``_node_magnitude``);
+    -inf where none does.
+    """
+    nr, nt = shape.nr, shape.nt
+    ix, ir, it = min(int(qx), shape.nx - 2), min(int(qr), nr - 2), min(int(qt), nt - 2)
+    best = -np.inf
+    for a in range(8):
+        jx, jr, jt = ix + (a & 1), ir + ((a >> 1) & 1), it + ((a >> 2) & 1)
+        m = _node_magnitude(flat, bits, ((jx * nr + jr) * nt + jt) * 2 + face)
+        if m < 0.0:
+            continue
+        dx = x - (params.x0 + jx * params.hx)
+        rc = params.r0 + jr * params.hr
+        sh = math.sin(0.5 * (th - (params.t0 + jt * params.ht)))
+        best = max(best, m - math.sqrt(dx * dx + (rho - rc) * (rho - rc) + 4.0 * rho * rc * sh * sh))
+    return best
 
 
 @numba.njit(cache=True)
@@ -382,15 +435,19 @@ def _posed_kernel_named(poses, points, channel_angle, flat, hs, fast, fast_shape
 
 
 @numba.njit(cache=True)
-def _pose_kernel(poses, points, channel_angle, flat, hs, fast, fast_shape, params, shape, tables):
+def _pose_kernel(poses, points, margin, channel_angle, flat, hs, fast, fast_shape, params, shape, tables):
     """``_pose_kernel_named`` on the arguments named (``named_args``): what the field's methods call."""
-    return _pose_kernel_named(poses, points, channel_angle, flat, hs,
+    return _pose_kernel_named(poses, points, margin, channel_angle, flat, hs,
                               *named_args(fast, fast_shape, params, shape, tables))
 
 
+#: exact solves a thread of ``_pose_kernel_named`` may put off to the end of its block of poses
+_DEFERRED = 8192
+
+
 @numba.njit(cache=True, parallel=True)
-def _pose_kernel_named(poses, points, channel_angle, flat, hs, fast, fast_shape, params, shape, tables):
-    """Per pose the minimum of each column over the points, and the point attaining it.
+def _pose_kernel_named(poses, points, margin, channel_angle, flat, hs, fast, fast_shape, params, shape, tables):
+    """Per pose the minimum of each column over the points, the point attaining it, and the exact solves made.
 
     Blocks of 64 poses x ``_BLOCK`` points: a point under neighbouring poses
     reads the same cells while they are in cache. Each (pose, block of
@@ -398,16 +455,25 @@ def _pose_kernel_named(poses, points, channel_angle, flat, hs, fast, fast_shape,
     loop LLVM vectorises (``_block_cells``: transform, arctangent, indices),
     the loads and interpolation in SIMD (``_block_values``), then the
     minima: the points stage 2 answered in a tight loop, then those off the
-    common case in full (``_off_point``; ``_lower`` keeps the first index of
-    a tie, as one pass in order would). Results are bit for bit those of
-    ``_fast_point``/``_slow_point`` per point. Pose blocks run in parallel
-    (each writes its own rows). ``fast``, ``fast_shape`` are
-    named tuples (passed by value: no reloads after stores).
+    common case (``_lower`` keeps the first index of a tie, as one pass in
+    order would). Pose blocks run in parallel (each writes its own rows).
+
+    A point in a cell marked for the exact solver is solved only where it can
+    attain the minimum: its unsigned distance is at least
+    ``_unsigned_bound`` - ``margin`` (``margin`` covers the nodes' values
+    against the solver's, the field's error bound), so where that lies above
+    the pose's minimum so far and the point is not behind the wall (its
+    distance is then the unsigned one) the solve cannot change the result.
+    The solves not settled so at once are put off to the end of the block of
+    poses, lowest bound first, when the minima are lower. Results are bit for
+    bit those of ``_fast_point``/``_slow_point`` per point.
     """
     n_pose, n_pt = poses.shape[0], points.shape[0]
     pts = np.ascontiguousarray(points.T)
+    bits = flat.view(np.uint32)
     best = np.full((n_pose, 4), np.inf)
     arg = np.zeros((n_pose, 4), dtype=np.int64)
+    solved = np.zeros(n_pose, dtype=np.int64)
     # at least 8 blocks when there are few poses, so that every thread gets some
     block = max(1, min(64, n_pose // 8))
     for b in numba.prange((n_pose + block - 1) // block):
@@ -415,6 +481,9 @@ def _pose_kernel_named(poses, points, channel_angle, flat, hs, fast, fast_shape,
         q1 = min(q0 + block, n_pose)
         work = new_work()
         xyz, cell, weight, ok, values, off = _block_scratch()
+        put_off = np.empty((_DEFERRED, 3), dtype=np.int64)        # pose, point, wall
+        put_at = np.empty((_DEFERRED, 4))                         # bound, xq, rq, tq
+        n_put = 0
         for k0 in range(0, n_pt, _BLOCK):
             n = min(_BLOCK, n_pt - k0)
             for q in range(q0, q1):
@@ -438,16 +507,55 @@ def _pose_kernel_named(poses, points, channel_angle, flat, hs, fast, fast_shape,
                     if c < b3:
                         b3, a3 = c, k0 + i
                 for j in range(n_off):
-                    k = k0 + off[j]
-                    s, p, h, c = _off_point(off[j], xyz, channel_angle, flat, hs, fast, fast_shape, params, shape,
-                                            tables, work)
+                    i = off[j]
+                    k = k0 + i
+                    x, y, z = xyz[0, i], xyz[1, i], xyz[2, i]
+                    s, p, h, c, good = _fast_point(x, y, z, flat, hs, fast, fast_shape)
+                    if not good:
+                        s, p, h, c, xq, rq, tq, th, rho, gap, rect, outside, qx, qr, qt = _slow_parts(
+                            x, y, z, channel_angle, flat, hs, params, shape, tables)
+                        if outside:
+                            if s != s:
+                                s = _exact_blade(0, xq, rq, tq, params, shape, tables, work)
+                            if p != p:
+                                p = _exact_blade(1, xq, rq, tq, params, shape, tables, work)
+                            s, p = max(s - gap, rect), max(p - gap, rect)
+                        else:
+                            for face in range(2):
+                                if (s if face == 0 else p) == (s if face == 0 else p):
+                                    continue
+                                low = _unsigned_bound(face, flat, bits, shape, params, xq, rq, tq, qx, qr, qt) - margin
+                                if low > (b0 if face == 0 else b1) and not _blade_behind(
+                                        face, xq, rq, tq, params, shape, tables, work):
+                                    v = np.inf                        # cannot attain the minimum
+                                elif low > -np.inf and n_put < _DEFERRED:
+                                    put_off[n_put, 0], put_off[n_put, 1], put_off[n_put, 2] = q, k, face
+                                    put_at[n_put, 0], put_at[n_put, 1] = low, xq
+                                    put_at[n_put, 2], put_at[n_put, 3] = rq, tq
+                                    n_put += 1
+                                    v = np.inf                        # settled at the end of the block
+                                else:
+                                    v = _exact_blade(face, xq, rq, tq, params, shape, tables, work)
+                                    solved[q] += 1
+                                if face == 0:
+                                    s = v
+                                else:
+                                    p = v
                     b0, a0 = _lower(s, k, b0, a0)
                     b1, a1 = _lower(p, k, b1, a1)
                     b2, a2 = _lower(h, k, b2, a2)
                     b3, a3 = _lower(c, k, b3, a3)
                 best[q, 0], best[q, 1], best[q, 2], best[q, 3] = b0, b1, b2, b3
                 arg[q, 0], arg[q, 1], arg[q, 2], arg[q, 3] = a0, a1, a2, a3
-    return best, arg
+        for m in np.argsort(put_at[:n_put, 0]):
+            q, k, face = put_off[m, 0], put_off[m, 1], put_off[m, 2]
+            low, xq, rq, tq = put_at[m, 0], put_at[m, 1], put_at[m, 2], put_at[m, 3]
+            if low > best[q, face] and not _blade_behind(face, xq, rq, tq, params, shape, tables, work):
+                continue
+            v = _exact_blade(face, xq, rq, tq, params, shape, tables, work)
+            solved[q] += 1
+            best[q, face], arg[q, face] = _lower(v, k, best[q, face], arg[q, face])
+    return best, arg, solved
 
 
 @numba.njit(cache=True)
