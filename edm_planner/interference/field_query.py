@@ -187,6 +187,13 @@ def _slow_point(x, y, z, channel_angle, flat, hs, params, shape, tables, work):
     """
     s, p, h, c, xq, rq, tq, _, _, gap, rect, outside, _, _, _ = _slow_parts(x, y, z, channel_angle, flat, hs, params,
                                                                             shape, tables)
+    s, p = _slow_walls(s, p, xq, rq, tq, gap, rect, outside, params, shape, tables, work)
+    return s, p, h, c
+
+
+@numba.njit(cache=True, inline="always")
+def _slow_walls(s, p, xq, rq, tq, gap, rect, outside, params, shape, tables, work):
+    """The walls' values of ``_slow_point`` from ``_slow_parts``: the exact solves, then the bound outside."""
     if s != s:
         s = _exact_blade(0, xq, rq, tq, params, shape, tables, work)
     if p != p:
@@ -194,7 +201,7 @@ def _slow_point(x, y, z, channel_angle, flat, hs, params, shape, tables, work):
     if outside:
         s = max(s - gap, rect)
         p = max(p - gap, rect)
-    return s, p, h, c
+    return s, p
 
 
 @numba.njit(cache=True, inline="always")
@@ -522,11 +529,7 @@ def _pose_kernel_named(poses, points, margin, channel_angle, flat, hs, fast, fas
                         s, p, h, c, xq, rq, tq, th, rho, gap, rect, outside, qx, qr, qt = _slow_parts(
                             x, y, z, channel_angle, flat, hs, params, shape, tables)
                         if outside:
-                            if s != s:
-                                s = _exact_blade(0, xq, rq, tq, params, shape, tables, work)
-                            if p != p:
-                                p = _exact_blade(1, xq, rq, tq, params, shape, tables, work)
-                            s, p = max(s - gap, rect), max(p - gap, rect)
+                            s, p = _slow_walls(s, p, xq, rq, tq, gap, rect, outside, params, shape, tables, work)
                         else:
                             for face in range(2):
                                 if (s if face == 0 else p) == (s if face == 0 else p):
