@@ -13,7 +13,7 @@ setup:
 	@bash tools/setup.sh
 
 demo: setup
-	$(PY) -m edm_planner.apps.demo --out out/demo
+	$(PY) -m edm_planner.nodes.programs.demo --out out/demo
 
 # The whole suite, one pytest-xdist worker per core, each test file in one worker (its module
 # fixtures built once), the files in the order of test/conftest.py (the longest first; xdist would
@@ -34,7 +34,7 @@ bench: setup
 # 1000 CheckInterference and 100 PlanChannel calls from two clients against one set of node processes:
 # memory every 100 calls and the latency percentiles (docs/reliability.md, Soak).
 soak: setup
-	$(PY) -m edm_planner.apps.soak --out out/soak.json
+	$(PY) -m edm_planner.nodes.programs.soak --out out/soak.json
 
 # The documentation site (docs/, mkdocs.yml) into out/site: open out/site/index.html. --strict: a broken
 # link or anchor, a page missing from the nav or a docstring griffe cannot parse fails the build.

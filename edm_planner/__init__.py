@@ -2,8 +2,9 @@
 
 Layers, top to bottom (a contract import-linter checks, ``.importlinter``):
 
-* entry points: :mod:`.bench`; :mod:`.apps` and :mod:`.cli`; :mod:`.nodes` (the ROS 2 nodes) over
-  :mod:`.ros` (their shared rclpy parts);
+* entry points: :mod:`.bench`; :mod:`.apps` and :mod:`.cli`; :mod:`.nodes` (the ROS 2 nodes and, in
+  :mod:`.nodes.programs`, the programs that drive them) over :mod:`.ros` (their shared rclpy parts); only
+  these last two import rclpy;
 * :mod:`.records`: the plan store, the certificate digest, exports, plots;
 * the domain, plain numpy/scipy/trimesh/numba without rclpy: :mod:`.process`, :mod:`.machining`,
   :mod:`.planning` and :mod:`.roughing`, :mod:`.cnc` and :mod:`.interference`, :mod:`.geometry`;

@@ -1,9 +1,9 @@
 """The process set-up every entry point does first: where numba keeps its compiled kernels, how OpenMP waits.
 
 Importing :mod:`edm_planner` (or any module of it) changes nothing in the process. The entry points (the
-``edm-plan`` command, the nodes, the programs of :mod:`edm_planner.apps`, the benchmarks, the test suite's
-conftest) call :func:`configure_process` before they import the core, because numba reads its cache
-directory when a kernel module is imported. A script that uses the core as a library may call it too; without
+``edm-plan`` command, the nodes, the programs of :mod:`edm_planner.nodes.programs` and :mod:`edm_planner.apps`,
+the benchmarks, the test suite's conftest) call :func:`configure_process` before they import the core, because
+numba reads its cache directory when a kernel module is imported. A script that uses the core as a library may call it too; without
 it numba caches next to the sources (``__pycache__``), keyed by each kernel's own file only. No rclpy.
 """
 

@@ -169,7 +169,7 @@ def test_the_node_from_the_install_space_answers_load_geometry_over_dds(workspac
 
         # the install space's node runs DDS on loopback UDP too (its own copy of the profile, found by the ament
         # index): every UDP socket it holds is bound to 127.0.0.1
-        from edm_planner.apps.crash_drill import udp_local_addresses
+        from edm_planner.nodes.programs.crash_drill import udp_local_addresses
         bound = udp_local_addresses(proc.pid)
         assert bound == {"127.0.0.1"}, f"the install space's node binds UDP to {bound}\n{log.read_text()}"
 

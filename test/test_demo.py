@@ -35,7 +35,7 @@ def test_demo_runs_end_to_end_and_writes_its_pictures(tmp_path):
     env["HOME"] = str(tmp_path / "home")          # a fresh user: caches and plan store start empty
     env.pop("EDM_PLANNER_PLAN_STORE", None)
     out = tmp_path / "demo"
-    run = subprocess.run([sys.executable, "-m", "edm_planner.apps.demo", "--out", str(out)], env=env,
+    run = subprocess.run([sys.executable, "-m", "edm_planner.nodes.programs.demo", "--out", str(out)], env=env,
                          capture_output=True, text=True, timeout=480)   # within the test's deadline
     assert run.returncode == 0, run.stdout + run.stderr
     text = run.stdout
@@ -111,8 +111,8 @@ def test_demo_interrupted_stops_every_node_and_exits_non_zero(tmp_path):
     env.pop("EDM_PLANNER_PLAN_STORE", None)
     env["PYTHONUNBUFFERED"] = "1"
     out = tmp_path / "demo"
-    proc = register(subprocess.Popen([sys.executable, "-m", "edm_planner.apps.demo", "--out", str(out)], env=env,
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True), "demo")
+    proc = register(subprocess.Popen([sys.executable, "-m", "edm_planner.nodes.programs.demo", "--out", str(out)],
+                                     env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True), "demo")
     output = OutputLines(proc)
     try:
         output.wait_for("] PlanElectrodeSet:", timeout=300)     # the cell controller has asked for the plan

@@ -10,9 +10,10 @@ import yaml
 
 from conftest import REPO
 
-#: the sub-packages with an API page of their own (docs/api/<name>.md), one ``::: module`` directive per module
+#: the sub-packages with an API page of their own (docs/api/<name>.md, a nested one's page named by its last
+#: part), one ``::: module`` directive per module
 API_PACKAGES = ("geometry", "interference", "planning", "machining", "cnc", "process", "roughing", "records",
-                "nodes", "ros", "apps", "bench")
+                "nodes", "nodes.programs", "ros", "apps", "bench")
 
 
 def nav_pages(nav):
@@ -67,8 +68,8 @@ def test_the_post_processor_page_documents_write_program(site):
 def test_every_module_of_a_subpackage_is_on_its_api_page():
     """A module added to a sub-package needs its ``::: edm_planner.<package>.<module>`` line on the page."""
     for package in API_PACKAGES:
-        page = (REPO / "docs" / "api" / f"{package}.md").read_text()
-        for module in sorted((REPO / "edm_planner" / package).glob("*.py")):
+        page = (REPO / "docs" / "api" / f"{package.split('.')[-1]}.md").read_text()
+        for module in sorted((REPO / "edm_planner" / package.replace(".", "/")).glob("*.py")):
             if module.stem == "__main__":          # `python -m` glue, documented with its package
                 continue
             name = f"edm_planner.{package}" + ("" if module.stem == "__init__" else f".{module.stem}")

@@ -1,5 +1,5 @@
 """The layer contract (.importlinter) holds: entry points over records over the domain over the base, no rclpy
-or ROS message below the ROS shell, and no import cycle anywhere in the package."""
+or ROS message outside the ROS shell (nodes, ros), and no import cycle anywhere in the package."""
 
 import configparser
 import subprocess
@@ -54,3 +54,25 @@ def test_the_contract_catches_an_upward_import(tmp_path):
                          text=True, timeout=300, env={"PYTHONPATH": str(tmp_path), "PATH": ""})
     assert run.returncode != 0
     assert "edm_planner.geometry is not allowed to import edm_planner.records" in run.stdout
+
+
+def test_the_ros_contract_catches_rclpy_above_the_shell(tmp_path):
+    """The bench and the apps are sources of the forbidden contract too: a bench module importing rclpy, or a
+    program of the ROS shell (which imports it), breaks it."""
+    import shutil
+
+    package = tmp_path / "edm_planner"
+    shutil.copytree(REPO / "edm_planner", package, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(REPO / ".importlinter", tmp_path / ".importlinter")
+    bench = package / "bench" / "service.py"
+    bench.write_text(bench.read_text() + "\nimport rclpy  # noqa\n")
+    app = package / "apps" / "warmup.py"
+    app.write_text(app.read_text() + "\nfrom ..nodes.programs import demo  # noqa\n")
+    run = subprocess.run([sys.executable, "-c", "import sys; from importlinter.cli import lint_imports_command; "
+                          "sys.exit(lint_imports_command())", "--no-cache"], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=300, env={"PYTHONPATH": str(tmp_path), "PATH": ""})
+    assert run.returncode != 0
+    assert "edm_planner.bench is not allowed to import rclpy:" in run.stdout, run.stdout
+    assert "edm_planner.bench.service -> rclpy" in run.stdout, run.stdout
+    assert "edm_planner.apps is not allowed to import rclpy:" in run.stdout, run.stdout
+    assert "edm_planner.apps.warmup -> edm_planner.nodes.programs.demo" in run.stdout, run.stdout

@@ -1,9 +1,10 @@
-"""Programs that bring the nodes up and drive them, or prepare the machine; each runs with ``python -m``.
+"""Programs that prepare the machine without ROS; each runs with ``python -m``.
 
-* :mod:`.demo` -- ``make demo``: the four nodes, one channel of the default blisk planned, a summary, plots;
-* :mod:`.soak` -- ``make soak``: thousands of calls from two clients, memory and latency;
-* :mod:`.crash_drill` -- a node killed mid-call and what the others do (Fast DDS transports);
 * :mod:`.warmup` -- ``make setup``: every numba kernel compiled into the cache once.
+
+The programs that bring the nodes up and drive them (``make demo``, ``make soak``, the crash drill) import
+rclpy, so they live in the ROS shell: :mod:`edm_planner.nodes.programs`. Nothing here imports rclpy or a ROS
+message (``.importlinter``).
 
 Entry points: each calls :func:`edm_planner.environment.configure_process` before the core is imported.
 """

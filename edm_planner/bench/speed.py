@@ -9,7 +9,8 @@ compared methods do the same work. Figures, units in the keys:
   point, on one core and on all; the same with every pose equal to the final
   pose (every cell in cache: what the arithmetic alone allows);
 * ``check_interference_1000_poses_ms``: the CheckInterference round trip
-  over DDS (fast method, nodes in this process);
+  over DDS (fast method, the nodes and the client in one child process:
+  :mod:`edm_planner.bench.service`);
 * ``load_geometry_already_loaded_ms``: LoadGeometry of the file the node
   loaded at start (answered from memory by content hash);
 * ``plan_certify``: the planning benchmark's case (default blisk, channel 0,
@@ -18,7 +19,7 @@ compared methods do the same work. Figures, units in the keys:
 * ``edm_plan_cli_s``: ``edm-plan plan`` of that electrode as a new process
   (``--store none``: a real plan each time), with the field and numba caches
   warm;
-* ``demo``: ``python -m edm_planner.apps.demo`` (what ``make demo`` runs)
+* ``demo``: ``python -m edm_planner.nodes.programs.demo`` (what ``make demo`` runs)
   with an empty field cache and plan store (a new HOME; numba's cache kept,
   as ``make setup`` leaves it), then once more with what the first run left.
 
@@ -45,7 +46,7 @@ from ..planning.plan import PlanOptions
 from ..planning.planner import plan_channel
 from ..planning.search import SearchOptions
 from .common import CONFIG, poses_near, rear_design
-from .service import load_geometry_round_trip, nodes_in_process, service_round_trip
+from .service import service_round_trips
 
 _log = logging.getLogger(__name__)
 
@@ -137,7 +138,7 @@ def demo_runs():
         env = dict(os.environ, HOME=str(home), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
         env.pop("EDM_PLANNER_PLAN_STORE", None)
         env.setdefault("AMENT_PREFIX_PATH", sys.prefix)          # as the Makefile sets it: the nodes' share dir
-        cmd = [sys.executable, "-m", "edm_planner.apps.demo", "--out", str(home / "demo")]
+        cmd = [sys.executable, "-m", "edm_planner.nodes.programs.demo", "--out", str(home / "demo")]
         first, log = _run(cmd, env=env)
         again, _ = _run(cmd, env=env)
         # the first run designs the set (the plan store is empty), the second finds it in the store
@@ -154,9 +155,10 @@ def bench_speed():
     field = FastChannelField(g.blisk, spacing=0.1, cache_dir=DEFAULT_CACHE, cache_key=g.geometry_id)
     out = {"field": field_throughput(g, field)}
     _log.warning("speed: field %s", out["field"])
-    with nodes_in_process() as nodes:                     # one bring-up for both round trips
-        out["check_interference_1000_poses_ms"] = service_round_trip(1000, poses_near, nodes=nodes)
-        out["load_geometry_already_loaded_ms"] = load_geometry_round_trip("default_blisk.yaml", nodes=nodes)
+    # one bring-up for both round trips (a child process: the bench imports no ROS)
+    trips = service_round_trips(offsets=poses_near(np.eye(4), 1000), load_geometry="default_blisk.yaml")
+    out["check_interference_1000_poses_ms"] = trips["check_interference_ms"]
+    out["load_geometry_already_loaded_ms"] = trips["load_geometry_ms"]
     out["plan_certify"] = plan_certify(g, field)
     _log.warning("speed: plan_certify %s", out["plan_certify"])
     out.update(edm_plan_cli())

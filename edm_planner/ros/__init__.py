@@ -10,6 +10,7 @@
 * :mod:`.shared` -- the latched QoS and the config directory, which the nodes and the programs share;
 * :mod:`.startup` -- a process's set-up before ``rclpy.init``.
 
-The nodes themselves are in :mod:`edm_planner.nodes`, the programs that drive them in :mod:`edm_planner.apps`.
+The nodes themselves are in :mod:`edm_planner.nodes`, the programs that drive them in
+:mod:`edm_planner.nodes.programs`.
 Importing this package does nothing else.
 """

@@ -1,6 +1,6 @@
 """What the nodes and the programs that drive them share besides messages: the latched QoS, the config directory.
 
-Here, not in a node's module, so that a program of :mod:`edm_planner.apps` imports no node to reach them.
+Here, not in a node's module, so that a program of :mod:`edm_planner.nodes.programs` imports no node to reach them.
 """
 
 import pathlib

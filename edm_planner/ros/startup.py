@@ -7,8 +7,8 @@ from .dds import use_loopback_udp
 def prepare_process():
     """Set up this process before ``rclpy.init``: :func:`~edm_planner.environment.configure_process`, then
     :func:`~.dds.use_loopback_udp` (Fast DDS on loopback UDP, never shared memory, where LOCALHOST discovery
-    is asked for). Idempotent; every node's ``main`` and every program of :mod:`edm_planner.apps` that starts
-    rclpy calls it first.
+    is asked for). Idempotent; every node's ``main`` and every program of :mod:`edm_planner.nodes.programs`
+    that starts rclpy calls it first.
 
     Returns
     -------

@@ -1,9 +1,9 @@
 """DDS that survives crashes and concurrent starts (issue 23): loopback UDP, never shared memory.
 
-The drill (edm_planner/apps/crash_drill.py) starts four sets of the four nodes at once, kills one node of
-each set with SIGKILL while it is busy, starts the killed ones again, twice, then starts a new set: every
-node alive at the end must answer over DDS within the deadline, and a node that does not is reported with
-its stacks. The decision table of the DDS set-up is tested on its own, without processes.
+The drill (edm_planner/nodes/programs/crash_drill.py) starts four sets of the four nodes at once, kills one
+node of each set with SIGKILL while it is busy, starts the killed ones again, twice, then starts a new set:
+every node alive at the end must answer over DDS within the deadline, and a node that does not is reported
+with its stacks. The decision table of the DDS set-up is tested on its own, without processes.
 """
 
 import logging
@@ -13,7 +13,7 @@ import pathlib
 import pytest
 
 from edm_planner.ros import dds
-from edm_planner.apps.crash_drill import NODES, run, udp_local_addresses
+from edm_planner.nodes.programs.crash_drill import NODES, run, udp_local_addresses
 
 OURS = str(dds.profile_path())
 

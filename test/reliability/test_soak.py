@@ -5,7 +5,7 @@
 
 import pytest
 
-from edm_planner.apps.soak import run_soak, schedule
+from edm_planner.nodes.programs.soak import run_soak, schedule
 
 #: private memory (RssAnon, what a leak grows; the distance field is mapped from its cache file, its pages
 #: count in VmRSS as queries touch them) a node may gain over the short soak's calls after the first 25

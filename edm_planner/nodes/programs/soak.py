@@ -14,7 +14,7 @@ cache, which the kernel can drop and which grow as queries first touch them);
 at the end the latency percentiles per kind of call.
 
 A repeated PlanChannel must return its first answer's axis path and poses bit
-for bit; every call must succeed. ``python -m edm_planner.apps.soak --out
+for bit; every call must succeed. ``python -m edm_planner.nodes.programs.soak --out
 out/soak.json`` (``make soak``: 1000 CheckInterference, 100 PlanChannel).
 """
 
@@ -37,14 +37,14 @@ from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 
-from ..environment import CACHE_ROOT, configure_process
+from ...environment import CACHE_ROOT, configure_process
 
 # this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
 configure_process()
 
-from ..geometry.loader import parse_document
-from ..ros.shared import config_directory
-from ..ros.dds import loopback_unless_told
+from ...geometry.loader import parse_document
+from ...ros.shared import config_directory
+from ...ros.dds import loopback_unless_told
 from .demo import Bringup
 
 _log = logging.getLogger(__name__)

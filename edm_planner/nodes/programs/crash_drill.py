@@ -10,9 +10,9 @@ killed ones are started again all at once, and so on; at the end a brand
 new set is started. Every node alive at the end, the new set included, must
 answer a request over DDS within ``deadline`` seconds; a node that does not
 is reported with its Python stacks (``SIGUSR1``: faulthandler in
-:func:`~.runtime.spin_node`) and the tail of its log.
+:func:`edm_planner.ros.runtime.spin_node`) and the tail of its log.
 
-``python -m edm_planner.apps.crash_drill --dds loopback-udp|stock``: the
+``python -m edm_planner.nodes.programs.crash_drill --dds loopback-udp|stock``: the
 measurement behind ``config/dds/fastdds_loopback_udp.xml`` (``stock`` runs
 rmw_fastrtps's own LOCALHOST set-up, shared memory included); JSON on stdout.
 ``test/reliability/test_crash_drill.py`` runs it on the project's set-up.
@@ -36,13 +36,13 @@ from edm_planner_msgs.srv import CheckInterference, ExecutePlan, LoadGeometry, P
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 
-from ..environment import configure_process
+from ...environment import configure_process
 
 # this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
 configure_process()
 
-from ..ros.shared import config_directory
-from ..ros import dds
+from ...ros.shared import config_directory
+from ...ros import dds
 
 NODES = ("geometry_loader", "interference_checker", "trajectory_planner", "axis_bridge")
 CLK_TCK = os.sysconf("SC_CLK_TCK")

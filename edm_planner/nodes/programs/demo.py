@@ -44,19 +44,19 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 from trajectory_msgs.msg import JointTrajectory
 
-from ..environment import configure_process
+from ...environment import configure_process
 
 # this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
 configure_process()
 
-from ..geometry.frames import rotation_about_x
-from ..interference import SURFACES as SURFACE_NAMES
-from ..ros.shared import LATCHED, config_directory
-from ..records.plan_export import read_plan
-from ..ros.action_client import LockedActionClient
-from ..ros.conversions import msg_to_mesh
-from ..ros.dds import use_loopback_udp
-from ..ros.runtime import enable_stack_dumps
+from ...geometry.frames import rotation_about_x
+from ...interference import SURFACES as SURFACE_NAMES
+from ...ros.shared import LATCHED, config_directory
+from ...records.plan_export import read_plan
+from ...ros.action_client import LockedActionClient
+from ...ros.conversions import msg_to_mesh
+from ...ros.dds import use_loopback_udp
+from ...ros.runtime import enable_stack_dumps
 
 NODES = ("geometry_loader", "interference_checker", "trajectory_planner", "axis_bridge")
 TRAJECTORY_TOPIC = "/edm_controller/joint_trajectory"
@@ -240,7 +240,7 @@ def _cycle_csv(path):
 
 def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=False):
     # heavy and optional: matplotlib (about 0.5 s to import) for the pictures only
-    from ..records import plots
+    from ...records import plots
 
     share = pathlib.Path(sys.prefix) / "share" / "edm_planner" / "config"
 
