@@ -16,6 +16,13 @@ YAML schema (mm, rad; file paths relative to the YAML's directory)::
                                           # cycle's clear position and index moves keep out of it
     electrode: {...}                      # optional, see ElectrodeDesign
 
+or, for a blisk from CAD, instead of blade_count, hub_profile, shroud_profile and blade::
+
+    step: {file: F.step, length_unit: mm, section_count: 25, station_count: 81}   # or step: F.step
+
+(a whole-blisk solid or one sector; see edm_planner.geometry.step_import; length_unit overrides the unit
+the file declares). ``load_geometry`` also takes a ``.step``/``.stp`` file directly.
+
 A document holding only the blisk keys loads with the default electrode design.
 A blade mesh is sliced only over the span the channel needs (hub to shroud
 plus 3 % of the smallest channel height, see ``blisk.mesh_slice_overlap``),
@@ -49,6 +56,11 @@ from .readers import read_nasa_meridional, read_nasa_table, read_sections_csv, u
 _log = logging.getLogger(__name__)
 
 TOP_KEYS = {"name", "blade_count", "hub_profile", "shroud_profile", "blade", "electrode", "part_axial_range"}
+TOP_KEYS = TOP_KEYS | {"step"}
+#: the keys a ``step:`` source replaces
+STEP_REPLACES = ("blade_count", "hub_profile", "shroud_profile", "blade")
+#: file name endings read as STEP by :func:`load_geometry`
+STEP_SUFFIXES = (".step", ".stp")
 BLADE_SOURCES = ("parametric", "sections", "mesh")
 #: largest YAML document accepted (inline or file) [bytes]
 MAX_YAML_BYTES = 4 * 1024 * 1024
@@ -56,6 +68,8 @@ MAX_YAML_BYTES = 4 * 1024 * 1024
 MAX_MESH_BYTES = 200 * 1024 * 1024
 #: largest table file (blade sections, meridional lines) accepted [bytes]
 MAX_TABLE_BYTES = 16 * 1024 * 1024
+#: largest STEP file accepted [bytes] (a whole blisk of 60 blades as B-spline faces is tens of MB)
+MAX_STEP_BYTES = 256 * 1024 * 1024
 #: deepest nesting of a YAML document (a geometry needs 6 levels, scalars counted)
 MAX_YAML_DEPTH = 32
 #: most aliases (``*name``) in a YAML document
@@ -76,22 +90,25 @@ class FileLimits:
         A blade mesh (STL, OBJ, PLY).
     table_bytes : int
         A blade section table or a meridional (hub, shroud) table.
+    step_bytes : int
+        A STEP file of the whole blisk or a sector.
     """
 
     yaml_bytes: int = MAX_YAML_BYTES
     mesh_bytes: int = MAX_MESH_BYTES
     table_bytes: int = MAX_TABLE_BYTES
+    step_bytes: int = MAX_STEP_BYTES
 
     def __post_init__(self):
-        for name in ("yaml_bytes", "mesh_bytes", "table_bytes"):
+        for name in ("yaml_bytes", "mesh_bytes", "table_bytes", "step_bytes"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer number of bytes, got {value!r}")
 
     def of(self, kind):
-        """The limit of a kind of file: 'yaml', 'mesh', 'table' or 'any' (the largest)."""
+        """The limit of a kind of file: 'yaml', 'mesh', 'table', 'step' or 'any' (the largest)."""
         if kind == "any":
-            return max(self.yaml_bytes, self.mesh_bytes, self.table_bytes)
+            return max(self.yaml_bytes, self.mesh_bytes, self.table_bytes, self.step_bytes)
         return getattr(self, f"{kind}_bytes")
 
 
@@ -166,6 +183,8 @@ class LoadedGeometry:
     design_given: bool = True
     #: what was sliced of a blade mesh (the report of ``mesh_to_sections``), None for other sources
     blade_slicing: dict = None
+    #: what was found in a STEP file (:func:`~.step_import.import_step`'s report), None for other sources
+    step_import: dict = None
 
     @property
     def electrodes(self):
@@ -221,11 +240,18 @@ class LoadedGeometry:
         of :func:`~.mesh_sections.mesh_to_sections_with_report`: the input mesh's axial and
         radial extent, how far it reaches beyond hub and shroud, the wall
         overlap, the span actually sliced and whether it was clipped to the
-        walls.
+        walls. For a STEP source the ``step_*`` keys say what was found: the
+        axis and the transform taking it onto X, whole blisk or sector, the
+        blade count, the hub and shroud ranges, the section radii and counts,
+        any fillet zones kept clear of, and the fit deviation (the largest
+        distance between the STEP's blade and the reconstructed faces at
+        cylinders half way between the section radii, mm).
         """
         out = self.summary()
         for key, value in (self.blade_slicing or {}).items():
             out[f"input_mesh_{key}"] = value
+        for key, value in (self.step_import or {}).items():
+            out[f"step_{key}"] = value
         return out
 
 
@@ -400,9 +426,56 @@ def parse_document(text, where="geometry", max_bytes=MAX_YAML_BYTES):
     return doc
 
 
+def _step(spec, files):
+    """The :class:`~.step_import.StepBlisk` of a ``step:`` entry, its file resolved in the sandbox."""
+    from .step_import import import_step
+
+    if isinstance(spec, str):
+        spec = {"file": spec}
+    if not isinstance(spec, dict):
+        raise GeometryError("step: expected a file name or a mapping with a 'file' key")
+    _known(spec, {"file", "length_unit", "section_count", "station_count"}, "step")
+    path = files.resolve(spec.get("file"), "step.file", "step")
+    counts = {}
+    for key, default, lo in (("section_count", 25, 4), ("station_count", 81, 8)):
+        v = spec.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int) or v < lo or v > 1000:
+            raise GeometryError(f"step.{key}: must be an integer in {lo} .. 1000, got {v!r}")
+        counts[key] = v
+    return import_step(path, counts["section_count"], counts["station_count"], spec.get("length_unit"))
+
+
+def _build_step(doc, files, source):
+    """:class:`LoadedGeometry` of a document with a ``step:`` source."""
+    from .step_import import fit_deviation
+
+    both = [k for k in STEP_REPLACES if k in doc]
+    if both:
+        raise GeometryError(f"step: replaces {list(STEP_REPLACES)}; give either step or those keys, not both "
+                            f"(also given: {both})")
+    name = doc.get("name", "")
+    if not isinstance(name, str):
+        raise GeometryError("name: must be a string")
+    found = _step(doc["step"], files)
+    blisk = Blisk(found.blade_count, found.hub, found.shroud, found.sections, name=name, source="step",
+                  part_axial_range=doc.get("part_axial_range"))
+    deviation, points = fit_deviation(blisk, found)
+    report = dict(found.report, fit_deviation_mm=deviation, fit_points=points)
+    design = ElectrodeDesign.from_dict(doc.get("electrode"))
+    design_given = doc.get("electrode") is not None
+    electrodes = design_electrodes(blisk, design) if design_given else None
+    digest = hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode())
+    for fname, h in files.hashes:
+        digest.update(f"\0{fname}\0{h}".encode())
+    return LoadedGeometry(digest.hexdigest(), blisk, design, electrodes, source, design_given=design_given,
+                          step_import=report)
+
+
 def build_geometry(doc, files, source=""):
     """Validated :class:`LoadedGeometry` from a parsed document."""
     _known(doc, TOP_KEYS, "geometry")
+    if "step" in doc:
+        return _build_step(doc, files, source)
     for key in ("blade_count", "hub_profile", "shroud_profile", "blade"):
         if key not in doc:
             raise GeometryError(f"geometry: missing required key '{key}'")
@@ -474,7 +547,8 @@ def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None, memo=N
     Parameters
     ----------
     path : path, optional
-        The YAML file.
+        The YAML file, or a STEP file (``.step``/``.stp``: a whole blisk or one sector as one solid, read by
+        :func:`~.step_import.import_step` with the default section and station counts).
     text : str, optional
         Inline YAML (exactly one of path and text).
     allowed_dirs : list of path, optional
@@ -500,6 +574,20 @@ def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None, memo=N
     """
     if (path is None) == (text is None):
         raise GeometryError("load_geometry: give exactly one of a path and inline YAML text")
+    if path is not None and str(path).lower().endswith(STEP_SUFFIXES):
+        # a STEP file on its own: the document {name, step: {file}} next to it
+        files = FileAccess(pathlib.Path.cwd(), allowed_dirs, limits)
+        real = files.resolve(str(path), "geometry file", "step")
+        files.hashes.clear()
+        files.base_dir = real.parent
+        doc = {"name": real.stem, "step": {"file": real.name}}
+        geometry = memo.lookup(doc, files, str(path)) if memo is not None else None
+        if geometry is None:
+            files.hashes.clear()
+            geometry = build_geometry(doc, files, source=str(path))
+            if memo is not None:
+                memo.remember(doc, files, geometry)
+        return geometry
     if path is not None:
         files = FileAccess(pathlib.Path.cwd(), allowed_dirs, limits)
         real = files.resolve(str(path), "geometry file", "yaml")
