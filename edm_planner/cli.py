@@ -91,6 +91,10 @@ def _parser():
     q.add_argument("--stock-mesh", metavar="FILE.stl",
                    help="pre-machined stock (closed mesh, workpiece frame, mm) the electrodes start from, instead "
                         "of the solid channel")
+    q.add_argument("--ray-address", default="", metavar="HOST:PORT",
+                   help="design an electrode set on this Ray cluster ('auto': the one this machine belongs to; "
+                        "started with `ray start --head`): its pieces and proof shares run as Ray tasks "
+                        "(default: local worker processes)")
     _store_argument(q)
     q.add_argument("--replan", action="store_true", help="plan anew even if the store has the plan of this request")
     _progress_argument(q)
@@ -366,7 +370,8 @@ def _plan_set(args, geometry, options, store, progress, out, err):
     stock = load_stock_mesh(args.stock_mesh) if args.stock_mesh else None
     designer = SetDesigner(geometry, field, options, SetOptions(time_budget=max(args.time_budget, 60.0) * 15),
                            field_cache=(args.cache_dir, geometry.geometry_id), detail=on_step, process=process,
-                           process_resolution=args.volume_resolution, stock_mesh=stock, process_step=add_process)
+                           process_resolution=args.volume_resolution, stock_mesh=stock, process_step=add_process,
+                           ray_address=args.ray_address)
     result = designer.design(args.channel)
     not_kept = ""
     try:

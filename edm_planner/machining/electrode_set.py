@@ -34,13 +34,11 @@ shortest cycle. Every candidate tried is reported with why it was rejected.
 import hashlib
 import json
 import logging
-import multiprocessing
 import os
 import pickle
-import queue
 import threading
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import asdict, dataclass, field, replace
 
 import numba
@@ -61,7 +59,8 @@ from .corner_rounding import corner_rounding_stock
 from .cycle import CycleBuilder, CycleOptions, shift_channel
 from .proof_path import proof_samples
 from .removal import simulate_removal
-from .set_progress import SetDesignCancelled, SetProgress, terminate_pool
+from .executors import drain, kind_for, make_executor
+from .set_progress import SetDesignCancelled, SetProgress
 from .swept_stock import Sweep
 from .wall_samples import wall_samples
 
@@ -308,6 +307,12 @@ class SetDesigner:
         candidate are sized in parallel worker processes (``workers``, default
         the CPU count), each loading the field from that cache.
     workers : int, optional
+    ray_address : str
+        A Ray cluster's address ("host:port", "auto"): the tasks (pieces, proof shares) run there as Ray tasks
+        (:mod:`.executors`); "" : none.
+    executor : str, optional
+        "local" (spawn worker processes) or "ray" (a local Ray started on demand, or the cluster at
+        ``ray_address``); default: Ray with an address, else :data:`.executors.DEFAULT_KIND`.
     process : ProcessModel, optional
         The EDM process (roughing twins, removed volume, erosion time, wear); part of the set id. None: none.
     process_resolution : float
@@ -324,7 +329,7 @@ class SetDesigner:
 
     def __init__(self, geometry, field, plan_options=None, options=None, cycle_options=None, progress=None,
                  field_cache=None, workers=None, detail=None, process=None, process_resolution=0.5,
-                 stock_mesh=None, process_step=None):
+                 stock_mesh=None, process_step=None, ray_address="", executor=None):
         if process is not None and process_step is None:
             raise ValueError("a SetDesigner with a process model needs its process_step "
                              "(edm_planner.process.set_process.add_process)")
@@ -352,6 +357,8 @@ class SetDesigner:
         self.detail = detail
         self.field_cache = field_cache
         self.workers = int(workers or os.cpu_count() or 1)
+        self.ray_address = str(ray_address or "")
+        self.executor_kind = kind_for(self.ray_address, executor)
         self._pool = None
         self._wall_samples = None
         self._inherent = None            # the corner rounding at the wall samples (prove)
@@ -360,7 +367,7 @@ class SetDesigner:
         self._sizing = ""                # what the sizing step tries: start, radial, circumferential
         self._fraction = 0.0             # the last fraction reported (reports never go back)
         self._cancel = threading.Event()
-        self._reports = None             # the workers' SetProgress records (a multiprocessing queue)
+        self._reports = None             # the workers' SetProgress records (a multiprocessing or a Ray queue)
         b = self.blisk
         self.h_max = 0.9 * float(np.min(b.pitch - (b.blade.theta_plus - b.blade.theta_minus)))
         self.r_start = self.options.radial_start * b.channel_height_range[0]
@@ -432,7 +439,7 @@ class SetDesigner:
         """
         self._cancel.set()
         if self._pool is not None:
-            terminate_pool(self._pool)
+            self._pool.terminate()
 
     def _check_cancel(self):
         if self._cancel.is_set():
@@ -682,8 +689,8 @@ class SetDesigner:
                 self._where = (index, count, j, len(cand.pieces))
                 done.append(self.size_piece(piece))
             return done
-        self._report(index / count, f"{cand.name}: sizing {len(cand.pieces)} electrodes in {self.workers} "
-                                     f"worker processes")
+        self._report(index / count, f"{cand.name}: sizing {len(cand.pieces)} electrodes in "
+                                     f"{pool.describe()}")
         remaining = self.options.time_budget - self._elapsed()
         n = len(cand.pieces)
         pending = {j: pool.submit(_size_in_worker, piece, remaining, (index, count, j, n), cand.name)
@@ -692,45 +699,57 @@ class SetDesigner:
         while pending:
             finished, _ = wait(list(pending.values()), timeout=0.25, return_when=FIRST_COMPLETED)
             self._check_cancel()
-            for record in _drain(self._reports):       # the workers' steps, each reported here
+            for record in drain(self._reports):       # the workers' steps, each reported here
                 shares[record.piece_index] = max(shares[record.piece_index], min(record.sizing_step / 12.0, 0.95))
                 self._report((index + 0.9 * sum(shares) / n) / count, record.message, piece=record.piece,
                              piece_index=record.piece_index, sizing_parameter=record.sizing_parameter,
                              sizing_step=record.sizing_step, radial_reduction=record.radial_reduction,
                              circumferential_reduction=record.circumferential_reduction)
             for j in [j for j, f in pending.items() if f in finished]:
-                ok, sized = pending.pop(j).result()
+                future = pending.pop(j)
+                ok, sized = future.result()
                 cand.pieces[j], done[j], shares[j] = sized, ok, 1.0
+                node = getattr(future, "node_id", "")          # a Ray task's node
                 self._report((index + 0.9 * sum(shares) / n) / count,
-                             f"{cand.name}: {sized.label} electrode {'sized' if ok else 'has no certified path'}",
-                             piece=sized.label, piece_index=j)
+                             f"{cand.name}: {sized.label} electrode {'sized' if ok else 'has no certified path'}"
+                             + (f" (on node {node[:8]})" if node else ""), piece=sized.label, piece_index=j)
         return done
 
     def _workers_pool(self):
-        if self.field_cache is None or self.workers < 2:
+        """The executor of the tasks (:mod:`.executors`), made on first use; None: everything runs here.
+
+        Local worker processes need the field cache and two workers or more; Ray needs the field cache (its
+        workers load the field from it) and runs on a local Ray of ``workers`` CPUs or on the cluster at
+        ``ray_address``, whose CPUs set ``workers`` (the proof's shares).
+        """
+        if self.field_cache is None or (self.executor_kind != "ray" and self.workers < 2):
             return None
         if self._pool is None:
-            # spawn, not fork: the caller may be a multi-threaded ROS node
-            context = multiprocessing.get_context("spawn")
-            self._reports = context.Queue() if self.detail is not None else None
-            self._pool = ProcessPoolExecutor(
-                max_workers=self.workers, mp_context=context,
-                initializer=_start_worker,
-                initargs=(pickle.dumps(self.geometry), self.field.spacing, self.field_cache, self.plan_options,
-                          self.options, self.cycle_options, self.base, self._reports))
+            self._pool = self.make_executor(self.workers)
+            self._reports = self._pool.reports
+            self.workers = self._pool.workers
         return self._pool
+
+    def make_executor(self, workers, kind=None):
+        """A new executor (:func:`.executors.make_executor`) of ``workers`` whose workers hold this designer's
+        geometry, field (from ``field_cache``), options and base design; its tasks are this module's
+        ``_size_in_worker`` and ``_plan_in_worker`` and the removal proof's shares."""
+        return make_executor(
+            workers, _start_worker,
+            (pickle.dumps(self.geometry), self.field.spacing, self.field_cache, self.plan_options,
+             self.options, self.cycle_options, self.base),
+            address=self.ray_address, kind=kind or self.executor_kind, reports=self.detail is not None)
 
     def close(self):
         """Stop the worker processes (if any): after their running jobs, or at once after :meth:`cancel`."""
         pool, self._pool = self._pool, None
         if pool is not None:
             if self._cancel.is_set():
-                terminate_pool(pool)
+                pool.terminate()
+                pool.shutdown(wait=False, cancel_futures=True)
             else:
                 pool.shutdown(wait=True, cancel_futures=True)
-        if self._reports is not None:
-            self._reports.close()
-            self._reports = None
+        self._reports = None
 
     def _evaluate(self, cand, index=0, count=1):
         self._name = cand.name
@@ -778,15 +797,18 @@ def _size_in_worker(piece, remaining, where=(0, 1, 0, 1), name=""):
     return ok, piece
 
 
-def _drain(reports):
-    """The SetProgress records waiting in a worker queue (none without one)."""
-    out = []
-    while reports is not None:
-        try:
-            out.append(reports.get_nowait())
-        except (queue.Empty, OSError, ValueError):
-            break
-    return out
+def _plan_in_worker(piece, h, radial):
+    """One sizing step in a worker: a certified-plan attempt of ``piece`` at (h, radial); (piece, plan or None).
+
+    The unit the bench (``scaleout``) and the scale-out tests hand out; :meth:`SetDesigner.size_piece` is a
+    sequence of these.
+    """
+    _WORKER.t0 = time.perf_counter()
+    plan, _ = _WORKER._plan(piece, h, radial)
+    return piece, plan
+
+
+_drain = drain          # the old private name
 
 
 def certificate_against_proof(candidate, report):

@@ -352,6 +352,7 @@ class TrajectoryPlannerNode(Node):
         self.declare_parameter("machine_file", "")
         self.declare_parameter("volume_resolution", 0.5)
         self.declare_parameter("stock_mesh", "")
+        self.declare_parameter("ray_address", "")
         # the process section (regimes, wear) electrode sets are planned with: the machine file the axis bridge
         # times them on (the same default); a bad file stops the node at start, with the key named
         self.process = load_machine(self.get_parameter("machine_file").value or default_machine_file()).process
@@ -587,7 +588,8 @@ class TrajectoryPlannerNode(Node):
             designer = SetDesigner(prepared.geometry, prepared.field, options, set_options, cycle_options,
                                    progress=progress, field_cache=(cache, gid), detail=detail, process=process,
                                    process_resolution=resolution, stock_mesh=self.stock_mesh,
-                                   process_step=add_process)
+                                   process_step=add_process,
+                                   ray_address=str(self.get_parameter("ray_address").value or ""))
             if job is not None:
                 job.attach(designer)
             # a cancelled design raises SetDesignCancelled here, before anything is stored (the plans, the set

@@ -1,0 +1,341 @@
+"""Where the set design's tasks run: local spawn worker processes, or Ray (a local Ray or a cluster).
+
+The set designer (:class:`~.electrode_set.SetDesigner`) hands out two kinds of task: the sizing of a
+candidate's pieces (each piece's certified-plan attempts, its cycle) and the shares of the wall samples of
+the removal proof. Both run in worker processes that hold the geometry, its distance field (loaded from the
+field cache) and a designer of their own. :func:`make_executor` gives one interface over
+
+- ``"local"``: a spawn :class:`~concurrent.futures.ProcessPoolExecutor` on this machine (today's workers), and
+- ``"ray"``: Ray tasks, on a local Ray started on demand (``address=""``) or on an existing cluster
+  (``address="host:6379"`` or ``"auto"``, what ``ray start --head`` printed).
+
+Both are :class:`concurrent.futures.Executor` in use: ``submit(fn, *args)`` returns a
+:class:`~concurrent.futures.Future`, so the designer and the removal simulation wait on them the same way.
+``fn`` is a module-level function; it runs in a worker after ``initializer(*initargs, reports)`` (once per
+worker process; with Ray, once per worker process and designer, keyed by a token). ``reports`` is a queue
+(``put``/``get_nowait``) the workers' progress records go through to the designer: a multiprocessing queue
+locally, a :class:`ray.util.queue.Queue` (an actor, 0 CPU) with Ray.
+
+Ray is imported only when the Ray executor is made (``import ray`` takes about 0.7 s). A local Ray keeps to
+the loopback interface (``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0``: every component binds and advertises
+127.0.0.1), runs without its dashboard, keeps its session files, logs and its authentication token in a
+temporary directory (not ``~/.ray``) that is removed when the executor shuts down, and starts one CPU slot
+per worker. A Ray task that fails because its worker process died (killed, out of memory, its node lost) is
+run again, up to ``max_retries`` times (default 3); a task is a pure function of its arguments and of the
+worker's initial state, so a retried task returns the same bits.
+
+On a cluster, every node needs this package (the same version, installed in the Python that runs its Ray
+workers) and the distance field: a worker loads it from the field cache directory the designer names (the
+same path on every node, e.g. a shared file system) and builds it there where it is missing (tens of
+seconds, once per node and geometry).
+
+The embedded default (:data:`DEFAULT_KIND`) is ``"local"``, decided by measurement on this 2-core machine
+(AMD EPYC family 25 model 1, 2 vCPU at 2.45 GHz, with other jobs running beside it: load average 4 to 5;
+``python -m edm_planner.bench --only scaleout``, 2026-11-27; docs/performance.md, "Scale-out with Ray"), the
+same 6 sizing steps of the default blisk's front/rear pieces from cold, the plans bit for bit the same in
+every run:
+
+| executor | workers | start [s] | first task done [s] | all 6 done [s] |
+|---|---|---|---|---|
+| serial, in the caller | (2 threads) | | | 22.4 |
+| local spawn workers | 1 | 0.01 | 6.3 | 23.3 |
+| local spawn workers | 2 | 0.00 | 10.8 | 23.7 |
+| local Ray (on demand) | 1 | 10.8 | 21.3 | 32.5 |
+| local Ray (on demand) | 2 | 8.8 | 22.5 | 30.5 |
+
+A local Ray costs a start of its own (the GCS, the raylet, the runtime-env agent, then worker processes that
+import the package and load the field: about 15 s more to the first result) and, on one machine, runs the
+same tasks in as many processes as the spawn pool, so it is slower here by 7 to 9 s a design; it pays on
+a cluster, where more cores than this machine's 2 take the tasks (``--ray-address``, the node parameter
+``ray_address``). Figures: :data:`MEASURED`.
+
+Bits: the core's figures depend on the thread count of numpy's BLAS (a sizing step of the rear piece gives
+other plan bits with ``OMP_NUM_THREADS=1`` than with 2), and Ray sets ``OMP_NUM_THREADS=1`` in its workers;
+the Ray tasks therefore run with this process's count (:func:`blas_threads`), so that they give the bits of
+the same step run here and in the local workers.
+"""
+
+import concurrent.futures
+import logging
+import multiprocessing
+import os
+import queue
+import secrets
+import shutil
+import sys
+import tempfile
+import threading
+import time
+
+from .set_progress import terminate_pool
+
+_log = logging.getLogger(__name__)
+
+LOCAL, RAY = "local", "ray"
+#: the executor when none is named and no Ray address is given (decided by measurement: see the module's text)
+DEFAULT_KIND = LOCAL
+#: a task whose worker process died is run again this often (Ray's ``max_retries``)
+MAX_RETRIES = 3
+#: what the choice of :data:`DEFAULT_KIND` rests on [s] (see the module's text): kind -> workers -> (start, first
+#: task done, all 6 done), and the serial run in the caller
+MEASURED = {"cpu": "AMD EPYC family 25 model 1, 2 vCPU, 2.45 GHz, load average 4 to 5 from other jobs",
+            "serial_s": 22.4,
+            "local": {1: (0.01, 6.3, 23.3), 2: (0.00, 10.8, 23.7)},
+            "ray": {1: (10.8, 21.3, 32.5), 2: (8.8, 22.5, 30.5)}}
+
+def kind_for(address="", kind=None):
+    """The executor kind: ``kind`` when given, Ray when an address is, else :data:`DEFAULT_KIND`."""
+    if kind:
+        if kind not in (LOCAL, RAY):
+            raise ValueError(f"executor kind must be {LOCAL!r} or {RAY!r}, got {kind!r}")
+        return kind
+    return RAY if address else DEFAULT_KIND
+
+
+def make_executor(workers, initializer, initargs=(), *, address="", kind=None, reports=False,
+                  max_retries=MAX_RETRIES):
+    """An executor of ``workers`` worker processes, each set up by ``initializer(*initargs, reports)``.
+
+    Parameters
+    ----------
+    workers : int
+        Worker processes (local, or a local Ray's CPU slots); on a Ray cluster the cluster's CPUs decide.
+    initializer : callable
+        A module-level function run once in every worker before its first task.
+    initargs : tuple
+    address : str
+        A Ray cluster's address ("host:port" or "auto"); "" : none (a local Ray when ``kind`` is "ray").
+    kind : str, optional
+        "local" or "ray" (default: :func:`kind_for`).
+    reports : bool
+        Make a queue for the workers' progress records (passed to ``initializer`` last; None without).
+    max_retries : int
+        Ray only: how often a task whose worker died is run again.
+    """
+    if kind_for(address, kind) == RAY:
+        return RayExecutor(workers, initializer, initargs, address=address, reports=reports,
+                           max_retries=max_retries)
+    return LocalExecutor(workers, initializer, initargs, reports=reports)
+
+
+class LocalExecutor:
+    """Spawn worker processes on this machine (spawn, not fork: the caller may be a multi-threaded ROS node)."""
+
+    kind = LOCAL
+
+    def __init__(self, workers, initializer, initargs=(), reports=False):
+        self.workers = int(workers)
+        context = multiprocessing.get_context("spawn")
+        self.reports = context.Queue() if reports else None
+        self._pool = concurrent.futures.ProcessPoolExecutor(
+            max_workers=self.workers, mp_context=context, initializer=initializer,
+            initargs=tuple(initargs) + (self.reports,))
+        self.where = {}          # nothing to place: one machine
+
+    def submit(self, fn, *args):
+        return self._pool.submit(fn, *args)
+
+    def shutdown(self, wait=True, cancel_futures=True):
+        self._pool.shutdown(wait=wait, cancel_futures=cancel_futures)
+        self._close_reports()
+
+    def terminate(self):
+        """Stop at once: the worker processes terminated, waiting futures fail (BrokenProcessPool)."""
+        terminate_pool(self._pool)
+
+    def _close_reports(self):
+        if self.reports is not None:
+            self.reports.close()
+            self.reports = None
+
+    def describe(self):
+        return f"{self.workers} local worker processes"
+
+
+# -- Ray -------------------------------------------------------------------------------------------------
+
+#: in a Ray worker process: the token of the designer whose initializer ran here last
+_READY = None
+
+
+def _edm_task(token, initializer, initargs, fn, args):
+    """A Ray task: the worker set up for ``token`` (once), then ``fn(*args)``; (node id, pid, result)."""
+    global _READY
+    import ray
+
+    if _READY != token:
+        initializer(*initargs)
+        _READY = token
+    return ray.get_runtime_context().get_node_id(), os.getpid(), fn(*args)
+
+
+def blas_threads():
+    """OMP_NUM_THREADS of this process's BLAS as a string: as set, else the CPU count (OpenBLAS's default)."""
+    return os.environ.get("OMP_NUM_THREADS") or str(os.cpu_count() or 1)
+
+
+def _loopback_environment(temp_dir):
+    """The environment of a local Ray on loopback, its token in ``temp_dir``: {name: previous value or None}."""
+    token = os.path.join(temp_dir, "auth_token")
+    with open(os.open(token, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600), "w") as f:
+        f.write(secrets.token_hex(32))
+    os.makedirs(os.path.join(temp_dir, "ray"), exist_ok=True)
+    wanted = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0",      # Ray's own switch: every address 127.0.0.1
+              "RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN_PATH": token,
+              "RAY_TMPDIR": temp_dir,                         # not /tmp/ray (its address file) either
+              "RAY_USAGE_STATS_ENABLED": "0"}
+    previous = {name: os.environ.get(name) for name in wanted}
+    os.environ.update(wanted)
+    return previous
+
+
+def _reread_ray_configuration():
+    """Ray was imported before the environment was set: its cached configuration and token read anew."""
+    try:
+        from ray._raylet import AuthenticationTokenLoader, Config
+
+        Config.initialize("")
+        AuthenticationTokenLoader.instance().reset_cache()
+    except Exception as exc:        # another Ray version: its start says what is missing
+        _log.warning("could not re-read Ray's configuration: %s", exc)
+
+
+def _restore(previous):
+    for name, value in previous.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
+
+
+#: a local Ray's object store [bytes]: the geometry, the sweeps of a proof (a few MB each), far below this
+LOCAL_OBJECT_STORE = 512 * 1024 * 1024
+_RAY_LOCK = threading.Lock()
+
+
+class RayExecutor:
+    """Ray tasks: on the cluster at ``address``, on a Ray this process is already connected to, or on a local
+    Ray started here (on loopback, in a temporary directory, stopped with :meth:`shutdown`)."""
+
+    kind = RAY
+
+    def __init__(self, workers, initializer, initargs=(), address="", reports=False, max_retries=MAX_RETRIES):
+        t0 = time.perf_counter()
+        self._owned = None              # "local" (started here), "connected" (we connected), None (the caller's)
+        self._temp_dir, self._environment = None, {}
+        with _RAY_LOCK:
+            imported = sys.modules.get("ray")
+            start_local = not address and not (imported is not None and imported.is_initialized())
+            if start_local:
+                # before Ray reads its configuration (at import): loopback, the token in our directory
+                self._temp_dir = tempfile.mkdtemp(prefix="edm_ray_")
+                self._environment = _loopback_environment(self._temp_dir)
+            try:
+                import ray              # slow (about 0.7 s): only here
+                from ray.util.queue import Queue
+
+                self._ray = ray
+                if start_local:
+                    if imported is not None:
+                        _reread_ray_configuration()
+                    ray.init(num_cpus=int(workers), include_dashboard=False, _temp_dir=self._temp_dir,
+                             object_store_memory=LOCAL_OBJECT_STORE, log_to_driver=False,
+                             logging_level=logging.WARNING)
+                    self._owned = "local"
+                elif not ray.is_initialized():
+                    ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
+                    self._owned = "connected"
+            except BaseException:
+                self._cleanup_local()
+                raise
+        cpus = int(ray.cluster_resources().get("CPU", 0))
+        self.workers = max(1, cpus if (address or self._owned is None) else int(workers))
+        self.reports = Queue(actor_options={"num_cpus": 0}) if reports else None
+        self._token = secrets.token_hex(8)
+        self._initargs = ray.put(tuple(initargs) + (self.reports,))
+        self._initializer = initializer
+        # the driver's BLAS/OpenMP thread count, not Ray's OMP_NUM_THREADS=1: the core's sums (numpy's BLAS)
+        # give other bits with another count, and a task must give the bits of the same step run here
+        self._remote = ray.remote(num_cpus=1, max_retries=int(max_retries), retry_exceptions=False,
+                                  runtime_env={"env_vars": {"OMP_NUM_THREADS": blas_threads()}})(_edm_task)
+        self._refs = set()
+        self._lock = threading.Lock()
+        self.where = {}                 # node id -> tasks finished there
+        self.start_s = time.perf_counter() - t0
+        _log.info("Ray executor: %s, %d CPUs, ready in %.1f s", self.describe(), self.workers, self.start_s)
+
+    def describe(self):
+        if self._owned == "local":
+            return f"a local Ray ({self.workers} CPUs)"
+        return f"the Ray cluster at {self._ray.get_runtime_context().gcs_address} ({self.workers} CPUs)"
+
+    def submit(self, fn, *args):
+        """``fn(*args)`` as a Ray task; a Future of its result, with ``node_id`` and ``pid`` once done."""
+        ref = self._remote.remote(self._token, self._initializer, self._initargs, fn, args)
+        outer = concurrent.futures.Future()
+        outer.set_running_or_notify_cancel()
+        with self._lock:
+            self._refs.add(ref)
+
+        def done(inner):
+            with self._lock:
+                self._refs.discard(ref)
+            try:
+                node_id, pid, result = inner.result()
+            except BaseException as exc:            # the task's own error, or Ray's (cancelled, retries used up)
+                outer.set_exception(exc)
+                return
+            outer.node_id, outer.pid = node_id, pid
+            with self._lock:
+                self.where[node_id] = self.where.get(node_id, 0) + 1
+            outer.set_result(result)
+
+        ref.future().add_done_callback(done)
+        return outer
+
+    def terminate(self):
+        """Stop at once: every task not finished is cancelled (its worker killed); waiting futures fail."""
+        with self._lock:
+            refs = list(self._refs)
+        for ref in refs:
+            try:
+                self._ray.cancel(ref, force=True)
+            except Exception:                       # already finished
+                pass
+
+    def shutdown(self, wait=True, cancel_futures=True):
+        """Cancel what is left (``cancel_futures``), drop the queue; stop a local Ray and remove its files."""
+        if cancel_futures and not wait:
+            self.terminate()
+        if self.reports is not None:
+            try:
+                self.reports.shutdown(force=True)
+            except Exception:
+                pass
+            self.reports = None
+        if self._owned is not None:
+            with _RAY_LOCK:
+                self._ray.shutdown()
+            if self._owned == "local":
+                self._cleanup_local()
+            self._owned = None
+
+    def _cleanup_local(self):
+        _restore(self._environment)
+        self._environment = {}
+        if self._temp_dir is not None:
+            shutil.rmtree(self._temp_dir, ignore_errors=True)
+            self._temp_dir = None
+
+
+def drain(reports):
+    """The records waiting in a ``reports`` queue (none without one): a multiprocessing or a Ray queue."""
+    out = []
+    while reports is not None:
+        try:
+            out.append(reports.get_nowait())
+        except (queue.Empty, OSError, ValueError):
+            break
+        except Exception:              # a Ray queue whose actor is gone
+            break
+    return out
