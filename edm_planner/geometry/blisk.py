@@ -8,7 +8,12 @@ meshes, the walls' angles at a meridional position.
 
 Channel k lies between the *suction* face of blade k (its +theta face) and the
 *pressure* face of blade k+1 (its -theta face), above the hub and below the
-shroud. Blade k is blade 0 rotated by ``k * pitch`` about X.
+shroud. Blade k is blade 0 rotated by ``k * pitch`` about X. A blisk as measured
+has blades that differ: its channel k is then a Blisk of its own
+(:mod:`.as_measured`) whose ``blade`` is blade k and whose ``pressure_blade``
+is blade k+1, both turned back into blade 0's position, so that its channel k
+is the part's channel k and every periodic tool (fields, checks, plans turned
+by k pitches) applies to it unchanged.
 """
 
 from dataclasses import dataclass, field
@@ -163,6 +168,10 @@ class Blisk:
         Where the part's material lies along X [mm]; it must hold the blades. None: the profiles' and the
         blades' whole x range. Profiles that run on through a rig's ducts (NASA Rotor 37's hub and casing
         lines reach 229 mm upstream) would otherwise put the cycle's clear position beyond a machine's travel.
+    pressure_blade : BladeSections, optional
+        The blade on the pressure side of channel 0 (blade 1) turned back by one pitch into blade 0's
+        position [mm, rad], where it differs from ``blade`` (one channel of a blisk as measured,
+        :mod:`.as_measured`). None: every blade is ``blade``.
     """
 
     blade_count: int
@@ -173,6 +182,7 @@ class Blisk:
     source: str = "parametric"
     knot_rule: str = "chord"
     part_axial_range: tuple = None
+    pressure_blade: BladeSections = None
     _cache: dict = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self):
@@ -183,6 +193,9 @@ class Blisk:
         validate_profiles(self.hub, self.shroud)
         overlap = wall_overlap(self.hub, self.shroud)
         object.__setattr__(self, "blade", extend_to_walls(self.blade, self.hub, self.shroud, overlap))
+        if self.pressure_blade is not None:
+            object.__setattr__(self, "pressure_blade",
+                               extend_to_walls(self.pressure_blade, self.hub, self.shroud, overlap))
         self._validate_blade()
         if self.part_axial_range is not None:
             object.__setattr__(self, "part_axial_range", self._checked_part_range(self.part_axial_range))
@@ -192,12 +205,24 @@ class Blisk:
         b = self.blade
         lo = max(self.hub.x_range[0], self.shroud.x_range[0])
         hi = min(self.hub.x_range[1], self.shroud.x_range[1])
-        if b.x.min() < lo - 1e-6 or b.x.max() > hi + 1e-6:
-            raise GeometryError(
-                f"blade: axial extent [{b.x.min():.3f}, {b.x.max():.3f}] mm reaches beyond the hub/shroud "
-                f"profiles' common range [{lo:.3f}, {hi:.3f}] mm; extend the profiles")
+        for which, blade in (("blade", b), ("pressure_blade", self.pressure_blade)):
+            if blade is not None and (blade.x.min() < lo - 1e-6 or blade.x.max() > hi + 1e-6):
+                raise GeometryError(
+                    f"{which}: axial extent [{blade.x.min():.3f}, {blade.x.max():.3f}] mm reaches beyond the "
+                    f"hub/shroud profiles' common range [{lo:.3f}, {hi:.3f}] mm; extend the profiles")
         # each blade occupies [theta_minus, theta_plus] at (x, r); its neighbour the same + pitch
         gap = (b.theta_minus + self.pitch - b.theta_plus) * b.r
+        if self.pressure_blade is not None:
+            # the neighbour differs: its pressure face at blade 0's stations
+            nb = self.pressure_blade
+            th_p, inside = self.pressure_face.theta_at(b.x.ravel(), b.r.ravel())
+            gap = np.where(inside.reshape(b.shape), (th_p.reshape(b.shape) + self.pitch - b.theta_plus) * b.r,
+                           np.inf)
+            th_s, inside_s = self.suction_face.theta_at(nb.x.ravel(), nb.r.ravel())
+            back = np.where(inside_s.reshape(nb.shape),
+                            (nb.theta_minus + self.pitch - th_s.reshape(nb.shape)) * nb.r, np.inf)
+            if back.min() < gap.min():
+                b, gap = nb, back
         if gap.min() < TOL.min_feature:
             s, c = np.unravel_index(np.argmin(gap), gap.shape)
             raise GeometryError(
@@ -262,8 +287,10 @@ class Blisk:
 
     @cached_property
     def pressure_face(self):
-        """The -theta face of blade 0; channel 0's pressure wall is this face of blade 1."""
-        return BladeFace(self.blade.face_points("minus"), name="blade pressure face", knot_rule=self.knot_rule)
+        """The -theta face of blade 0 (of ``pressure_blade`` where given); channel 0's pressure wall is this
+        face turned by one pitch."""
+        blade = self.blade if self.pressure_blade is None else self.pressure_blade
+        return BladeFace(blade.face_points("minus"), name="blade pressure face", knot_rule=self.knot_rule)
 
     def wall_angles(self, x, r, channel=0, with_gradient=False):
         """Angles of channel k's two blade walls at meridional positions (x, r).
@@ -417,6 +444,10 @@ class Blisk:
                 "theta_minus": b.theta_minus.tolist(), "theta_plus": b.theta_plus.tolist(),
             },
             "part_axial_range": None if self.part_axial_range is None else list(self.part_axial_range),
+            "pressure_blade_sections": None if self.pressure_blade is None else {
+                "x": self.pressure_blade.x.tolist(), "r": self.pressure_blade.r.tolist(),
+                "theta_minus": self.pressure_blade.theta_minus.tolist(),
+                "theta_plus": self.pressure_blade.theta_plus.tolist()},
         }
 
     @classmethod
@@ -425,13 +456,15 @@ class Blisk:
         if data.get("format") != MODEL_FORMAT:
             raise GeometryError(f"geometry model: unknown format {data.get('format')!r}, expected {MODEL_FORMAT}")
         s = data["blade_sections"]
+        p = data.get("pressure_blade_sections")
         return cls(
             blade_count=data["blade_count"],
             hub=RevolutionProfile(data["hub_profile"], "hub_profile"),
             shroud=RevolutionProfile(data["shroud_profile"], "shroud_profile"),
             blade=BladeSections(s["x"], s["r"], s["theta_minus"], s["theta_plus"]),
             name=data.get("name", ""), source=data.get("source", "sections"),
-            knot_rule=data.get("knot_rule", "chord"), part_axial_range=data.get("part_axial_range"))
+            knot_rule=data.get("knot_rule", "chord"), part_axial_range=data.get("part_axial_range"),
+            pressure_blade=None if p is None else BladeSections(p["x"], p["r"], p["theta_minus"], p["theta_plus"]))
 
 
 def _xr_theta(points):

@@ -22,6 +22,10 @@ or, for a blisk from CAD, instead of blade_count, hub_profile, shroud_profile an
 
 (a whole-blisk solid or one sector; see edm_planner.geometry.step_import; length_unit overrides the unit
 the file declares). ``load_geometry`` also takes a ``.step``/``.stp`` file directly.
+    as_measured:                          # optional: blades as inspected (edm_planner.geometry.as_measured)
+      tolerance: 0.005                    # [mm] channels whose walls agree within this share a plan
+      blades:                             # each in its own place on the part (blade k near k * pitch)
+        - {blade: 3, sections: {file: F, format: csv}}   # or mesh: F, as for blade; others stay nominal
 
 A document holding only the blisk keys loads with the default electrode design.
 A blade mesh is sliced only over the span the channel needs (hub to shroud
@@ -43,6 +47,7 @@ import numpy as np
 import yaml
 
 from ..errors import GeometryError, GeometryFileError
+from .as_measured import MeasuredBlades, channel_blisk, channel_groups, to_blade_zero
 from .blisk import Blisk, mesh_slice_overlap, validate_profiles
 from .centerline import channel_centerline
 from .electrode import ElectrodeDesign, design_electrodes
@@ -55,7 +60,8 @@ from .readers import read_nasa_meridional, read_nasa_table, read_sections_csv, u
 
 _log = logging.getLogger(__name__)
 
-TOP_KEYS = {"name", "blade_count", "hub_profile", "shroud_profile", "blade", "electrode", "part_axial_range"}
+TOP_KEYS = {"name", "blade_count", "hub_profile", "shroud_profile", "blade", "electrode", "part_axial_range",
+            "as_measured"}
 TOP_KEYS = TOP_KEYS | {"step"}
 #: the keys a ``step:`` source replaces
 STEP_REPLACES = ("blade_count", "hub_profile", "shroud_profile", "blade")
@@ -185,6 +191,50 @@ class LoadedGeometry:
     blade_slicing: dict = None
     #: what was found in a STEP file (:func:`~.step_import.import_step`'s report), None for other sources
     step_import: dict = None
+    #: blades as measured (:class:`~.as_measured.MeasuredBlades`), None for a nominal (periodic) blisk
+    measured: MeasuredBlades = None
+    #: the part's channel this geometry stands for (:meth:`for_channel`), None for the whole blisk
+    channel: int = None
+    #: the key of this geometry's fast field in the field cache: ``geometry_id``, or per channel as measured
+    field_key: str = None
+
+    def __post_init__(self):
+        if self.field_key is None:
+            self.field_key = self.geometry_id
+        self._channels = {}
+
+    def for_channel(self, channel):
+        """The geometry channel ``channel`` is designed, planned and proven on.
+
+        For a nominal blisk: this geometry. For a blisk as measured: a geometry whose blisk has the
+        channel's own two blades (:func:`~.as_measured.channel_blisk`; its channel ``channel`` is the
+        part's), the same ``geometry_id`` (the part) and its own ``field_key``; this geometry where both
+        blades are nominal.
+        """
+        if self.measured is None or self.channel is not None:
+            return self
+        n = self.blisk.blade_count
+        if not (isinstance(channel, (int, np.integer)) and 0 <= channel < n):
+            raise GeometryError(f"channel must be an integer in 0 .. {n - 1}, got {channel!r}")
+        channel = int(channel)
+        if channel not in self._channels:
+            blisk = channel_blisk(self.blisk, self.measured, channel)
+            if blisk is self.blisk:
+                self._channels[channel] = self
+            else:
+                key = hashlib.sha256(f"{self.geometry_id}/channel/{channel}".encode()).hexdigest()
+                self._channels[channel] = LoadedGeometry(
+                    self.geometry_id, blisk, self.design, None, self.source, design_given=self.design_given,
+                    channel=channel, field_key=key)
+        return self._channels[channel]
+
+    def channel_groups(self):
+        """Channels that share a plan (:func:`~.as_measured.channel_groups` within ``measured.tolerance``):
+        a list of (representative, members, wall deviations [mm]); one group of all channels when nominal."""
+        n = self.blisk.blade_count
+        if self.measured is None:
+            return [(0, list(range(n)), [0.0] * n)]
+        return channel_groups([self.for_channel(k).blisk for k in range(n)], self.measured.tolerance)
 
     @property
     def electrodes(self):
@@ -232,7 +282,9 @@ class LoadedGeometry:
         return dict(self._summary)
 
     def info(self):
-        """:meth:`summary` and, for a blade given as a mesh, what was sliced of it.
+        """:meth:`summary` and, for a blade given as a mesh, what was sliced of it; for a blisk as measured,
+        the measured blades, how many channels have walls of their own and how many plan groups they form
+        (``largest_wall_deviation``: the largest deviation [mm] of a channel from its group's representative).
 
         The extra ``input_mesh_*`` keys (lengths in mm; not fields of
         GeometrySummary.msg, and not to be confused with ``blade_mesh_*``,
@@ -252,6 +304,13 @@ class LoadedGeometry:
             out[f"input_mesh_{key}"] = value
         for key, value in (self.step_import or {}).items():
             out[f"step_{key}"] = value
+        if self.measured is not None:
+            groups = self.channel_groups()
+            n = self.blisk.blade_count
+            out.update(measured_blades=sorted(self.measured.blades), as_measured_tolerance=self.measured.tolerance,
+                       channels_own_geometry=sum(self.for_channel(k) is not self for k in range(n)),
+                       channel_groups=len(groups),
+                       largest_wall_deviation=max((max(g[2]) for g in groups), default=0.0))
         return out
 
 
@@ -491,6 +550,7 @@ def build_geometry(doc, files, source=""):
         raise GeometryError("name: must be a string")
     blisk = Blisk(doc["blade_count"], hub, shroud, blade, name=name, source=blade_source, knot_rule=knot_rule,
                   part_axial_range=doc.get("part_axial_range"))
+    measured = _as_measured(doc.get("as_measured"), blisk, files) if "as_measured" in doc else None
     design = ElectrodeDesign.from_dict(doc.get("electrode"))
     design_given = doc.get("electrode") is not None
     # a design the file gives is checked now (its errors belong to the load); the default one on first use
@@ -499,7 +559,44 @@ def build_geometry(doc, files, source=""):
     for fname, h in files.hashes:
         digest.update(f"\0{fname}\0{h}".encode())
     return LoadedGeometry(digest.hexdigest(), blisk, design, electrodes, source,
-                          design_given=design_given, blade_slicing=slicing)
+                          design_given=design_given, blade_slicing=slicing, measured=measured)
+
+
+def _as_measured(spec, blisk, files):
+    """The ``as_measured`` section: blades as inspected, each turned back into blade 0's position."""
+    if not isinstance(spec, dict):
+        raise GeometryError("as_measured: expected a mapping with 'blades' (and optionally 'tolerance' in mm)")
+    _known(spec, {"blades", "tolerance"}, "as_measured")
+    tol = spec.get("tolerance", 0.005)
+    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not (0 <= tol <= 0.1):
+        raise GeometryError(f"as_measured.tolerance: must be a number of mm in 0 .. 0.1, got {tol!r}")
+    entries = spec.get("blades")
+    if not isinstance(entries, list) or not entries:
+        raise GeometryError("as_measured.blades: expected a non-empty list of {blade: k, sections|mesh: ...}")
+    blades, sources = {}, {}
+    n = blisk.blade_count
+    for i, entry in enumerate(entries):
+        where = f"as_measured.blades[{i}]"
+        if not isinstance(entry, dict) or "blade" not in entry:
+            raise GeometryError(f"{where}: expected a mapping with 'blade' (its index) and one of "
+                                f"{list(BLADE_SOURCES)}")
+        k = entry["blade"]
+        if isinstance(k, bool) or not isinstance(k, int) or not 0 <= k < n:
+            raise GeometryError(f"{where}.blade: must be a blade index in 0 .. {n - 1}, got {k!r}")
+        if k in blades:
+            raise GeometryError(f"{where}.blade: blade {k} is given twice")
+        rest = {key: v for key, v in entry.items() if key != "blade"}
+        try:
+            sections, source, _ = _blade(rest, blisk.hub, blisk.shroud, files)
+        except (GeometryError, GeometryFileError) as exc:
+            raise type(exc)(f"{where} (blade {k}): {exc.message}") from None
+        blades[k] = to_blade_zero(sections, k, n)
+        sources[k] = source
+    measured = MeasuredBlades(blades, float(tol), sources)
+    # every channel a measured blade bounds must be a valid blisk (no intersecting neighbours)
+    for k in sorted({c for b in blades for c in (b, (b - 1) % n)}):
+        channel_blisk(blisk, measured, k)
+    return measured
 
 
 class GeometryMemo:

@@ -73,6 +73,45 @@ def blisk_program_steps(set_plan_ids, blade_count):
     return [(p, k) for p in ids for k in range(n)]
 
 
+def channel_program_steps(groups, group_plan_ids, blade_count):
+    """Steps of the whole-blisk program of a blisk as measured: each channel machined with its own plans.
+
+    Channels whose walls agree within the geometry's tolerance form a group
+    (:meth:`~edm_planner.geometry.loader.LoadedGeometry.channel_groups`) that shares the plans made on its
+    representative's own walls; each electrode of a group's set runs through the group's channels, then the
+    next electrode, then the next group's set.
+
+    Parameters
+    ----------
+    groups : sequence of (int, sequence of int, ...)
+        (representative channel, member channels, ...) as ``channel_groups`` gives them.
+    group_plan_ids : dict
+        Representative channel -> its set's plan ids in machining order.
+    blade_count : int
+
+    Returns
+    -------
+    list of (str, int)
+        [(plan id, channel)]: every channel once per electrode of its group's set.
+    """
+    n = int(blade_count)
+    seen = sorted(k for g in groups for k in g[1])
+    if seen != list(range(n)):
+        raise EdmError(ErrorCode.INVALID_REQUEST, f"the channel groups must cover channels 0 .. {n - 1} once each, "
+                                                  f"got {seen}")
+    steps = []
+    for group in groups:
+        rep, members = int(group[0]), [int(k) for k in group[1]]
+        ids = [str(p) for p in group_plan_ids.get(rep, ())]
+        if not ids:
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"no plans for the group of channel {rep} (channels "
+                                                      f"{members}): every group needs its own electrode set")
+        if len(set(ids)) != len(ids):
+            raise EdmError(ErrorCode.INVALID_REQUEST, f"the group of channel {rep} names a plan twice: {ids}")
+        steps += [(p, k) for p in ids for k in members]
+    return steps
+
+
 def sequence_id_for(kind, steps, geometry_id=""):
     """A deterministic sequence id (16 hex digits, like plan ids) of a kind and its steps."""
     doc = json.dumps([kind, geometry_id, [[str(p), int(c)] for p, c in steps]])

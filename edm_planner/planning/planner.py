@@ -148,12 +148,17 @@ def plan_channel(geometry, channel=0, electrode_id="", options=None, field=None,
     """
     t0 = time.perf_counter()
     options = options or PlanOptions()
-    blisk = geometry.blisk
-    if not (isinstance(channel, (int, np.integer)) and 0 <= channel < blisk.blade_count):
+    if not (isinstance(channel, (int, np.integer)) and 0 <= channel < geometry.blisk.blade_count):
         raise EdmError(ErrorCode.INVALID_REQUEST,
-                       f"channel must be an integer in 0 .. {blisk.blade_count - 1}, got {channel!r}")
+                       f"channel must be an integer in 0 .. {geometry.blisk.blade_count - 1}, got {channel!r}")
+    own = geometry.for_channel(channel)
+    if own is not geometry:
+        # a blisk as measured: the channel's own two blades; a field or electrodes of another blisk do not apply
+        geometry, field = own, (field if field is not None and field.blisk is own.blisk else None)
+        electrodes = None
+    blisk = geometry.blisk
     if field is None:
-        field = FastChannelField(blisk, spacing=0.1, cache_dir=cache_dir, cache_key=geometry.geometry_id)
+        field = FastChannelField(blisk, spacing=0.1, cache_dir=cache_dir, cache_key=geometry.field_key)
     base_design = design or geometry.design
     if electrodes is None:
         electrodes = geometry.electrodes if design is None else design_electrodes(blisk, design)

@@ -1,0 +1,156 @@
+"""A blisk as measured: every blade its own, every channel planned on its own two blades (no rclpy).
+
+A forged or milled blisk's blades are off nominal by a few hundredths to a
+tenth of a millimetre, blade by blade: as much as the electrode's 0.1 mm
+discharge gap. A plan certified on the nominal channel is therefore not
+certified on the part. Inspection data gives some or all blades as measured
+(sections or a mesh, each in its own place on the part: blade k near
+``k * pitch``); the others stay nominal.
+
+Channel k lies between the suction face of blade k and the pressure face of
+blade k+1. :func:`channel_blisk` makes it a :class:`~.blisk.Blisk` of its own:
+``blade`` is blade k and ``pressure_blade`` blade k+1, both turned back into
+blade 0's position. That blisk's channel k *is* the part's channel k, so the
+periodic machinery (the fast field turned by k pitches, the exact checks, a
+plan turned to channel k) applies unchanged, and the electrode is designed,
+the path planned and the removal proven on the channel's own walls.
+
+:func:`wall_deviation` measures how far two channels' walls differ (the
+largest arc ``r * |d theta|`` over a meridional grid, an upper bound of how
+far a wall point moves along the circle, so of how much any clearance to it
+changes, at the grid's points), and :func:`channel_groups` puts channels that
+agree within a tolerance into one group that shares one plan.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import GeometryError
+from .blisk import Blisk
+
+#: meridional grid of :func:`wall_deviation`: stations along the axis and across the span
+DEVIATION_GRID = (60, 24)
+#: inset of that grid from the full-span axial range and from hub and shroud, as a fraction
+DEVIATION_INSET = 0.01
+
+
+@dataclass(frozen=True)
+class MeasuredBlades:
+    """Blades given as measured, each turned back into blade 0's position.
+
+    Attributes
+    ----------
+    blades : dict
+        Blade index -> :class:`~.sections.BladeSections` [mm, rad]; absent blades are nominal.
+    tolerance : float
+        Channels whose walls agree within this [mm] (:func:`wall_deviation`) share a plan.
+    sources : dict
+        Blade index -> what the blade was read from (for reports).
+    """
+
+    blades: dict
+    tolerance: float = 0.005
+    sources: dict = None
+
+    def channel_blades(self, channel, blade_count):
+        """(blade k, blade k+1) of channel k as given, None where nominal."""
+        return self.blades.get(channel), self.blades.get((channel + 1) % blade_count)
+
+
+def to_blade_zero(sections, blade_index, blade_count):
+    """Blade ``blade_index`` measured in its own place on the part, turned back into blade 0's position."""
+    return sections.rotated(-2.0 * np.pi * blade_index / blade_count)
+
+
+def channel_blisk(nominal, measured, channel):
+    """Channel k of the part as a Blisk of its own (``nominal`` itself where both its blades are nominal).
+
+    Parameters
+    ----------
+    nominal : Blisk
+    measured : MeasuredBlades
+    channel : int
+
+    Raises
+    ------
+    GeometryError
+        The measured blades intersect each other or leave the hub/shroud range.
+    """
+    suction, pressure = measured.channel_blades(channel, nominal.blade_count)
+    if suction is None and pressure is None:
+        return nominal
+    try:
+        return Blisk(nominal.blade_count, nominal.hub, nominal.shroud, suction or nominal.blade,
+                     name=f"{nominal.name}, channel {channel} as measured".strip(", "), source=nominal.source,
+                     knot_rule=nominal.knot_rule, part_axial_range=nominal.part_axial_range,
+                     pressure_blade=pressure or nominal.blade)
+    except GeometryError as exc:
+        raise GeometryError(f"channel {channel} as measured (blades {channel} and "
+                            f"{(channel + 1) % nominal.blade_count}): {exc.message}") from None
+
+
+def _grid(blisk):
+    x0, x1 = blisk.full_span_axial_range
+    nx, nr = DEVIATION_GRID
+    inset = DEVIATION_INSET * (x1 - x0)
+    x = np.linspace(x0 + inset, x1 - inset, nx)
+    lo, hi = blisk.hub.radius_at(x), blisk.shroud.radius_at(x)
+    rho = np.linspace(DEVIATION_INSET, 1 - DEVIATION_INSET, nr)
+    R = lo[:, None] + rho[None, :] * (hi - lo)[:, None]
+    return np.repeat(x, nr), R.ravel()
+
+
+def wall_deviation(a, b):
+    """How far the walls of channel 0 of two blisks differ [mm]: the largest ``r * |d theta|`` of the suction
+    and of the pressure wall over a 60 x 24 meridional grid of ``a`` (a sampled figure, not a bound between
+    the grid's points)."""
+    x, r = _grid(a)
+    ta_s, ta_p, ina = a.wall_angles(x, r)
+    tb_s, tb_p, inb = b.wall_angles(x, r)
+    both = ina & inb
+    if not both.any():
+        raise GeometryError("wall_deviation: the two channels' walls have no meridional point in common")
+    return float(max(np.max(np.abs(ta_s - tb_s)[both] * r[both]), np.max(np.abs(ta_p - tb_p)[both] * r[both])))
+
+
+def channel_groups(views, tolerance):
+    """Channels that share a plan: each joins the first earlier group whose representative's walls agree
+    with its own within ``tolerance`` [mm] (:func:`wall_deviation`, on channel 0's grid).
+
+    Parameters
+    ----------
+    views : list of Blisk
+        Channel k's blisk (:func:`channel_blisk`) at index k; the same object for equal channels.
+
+    Returns
+    -------
+    list of (int, list of int, list of float)
+        (representative channel, member channels, each member's wall deviation from it [mm]).
+    """
+    x, r = _grid(views[0])
+    angles = {}                     # the walls' angles per distinct view, once each
+
+    def walls(view):
+        if id(view) not in angles:
+            th_s, th_p, inside = view.wall_angles(x, r)
+            angles[id(view)] = (th_s, th_p, inside)
+        return angles[id(view)]
+
+    groups = []
+    for k, view in enumerate(views):
+        for rep, members, devs in groups:
+            if views[rep] is view:
+                dev = 0.0
+            else:
+                (a_s, a_p, a_in), (b_s, b_p, b_in) = walls(views[rep]), walls(view)
+                both = a_in & b_in
+                dev = np.inf if not both.any() else float(max(np.max(np.abs(a_s - b_s)[both] * r[both]),
+                                                              np.max(np.abs(a_p - b_p)[both] * r[both])))
+            if dev <= tolerance:
+                members.append(k)
+                devs.append(dev)
+                break
+        else:
+            groups.append((k, [k], [0.0]))
+    return groups
