@@ -101,7 +101,9 @@ def _parser():
     q.add_argument("-v", "--verbose", action="store_true", help="log the planner's steps to stderr")
     g = sub.add_parser("geometry", help="validate a geometry file or show its figures")
     g.add_argument("action", choices=("validate", "info"))
-    g.add_argument("file", metavar="FILE.yaml")
+    g.add_argument("file", metavar="FILE.yaml", nargs="?",
+                   help="geometry YAML, or a STEP file (.step, .stp) of a whole blisk or one sector")
+    g.add_argument("--geometry", dest="geometry_file", metavar="FILE", help="the same, as an option")
     c = sub.add_parser("check", help="re-check an exported plan with the exact clearance of every vertex",
                        description="Exact re-check of a plan export: every electrode vertex at every sample "
                                    "against the four channel surfaces; vertex steps; axes vs poses.")
@@ -180,6 +182,10 @@ def _progress_argument(parser):
 
 
 def _geometry(args, out):
+    if (args.file is None) == (args.geometry_file is None):
+        raise EdmError(ErrorCode.INVALID_REQUEST,
+                       "geometry: give the geometry file once, as FILE or --geometry FILE")
+    args.file = args.file or args.geometry_file
     geometry = load_geometry(args.file)
     if args.action == "validate":
         print(f"{args.file}: valid, geometry id {geometry.geometry_id}, {geometry.blisk.blade_count} blades, "

@@ -169,3 +169,76 @@ def subshapes(shape, kind):
         out.append(e.Current())
         e.Next()
     return out
+
+
+def _loft(rows, solid=True):
+    """A lofted solid through closed section wires; rows: (pressure points LE->TE, suction points LE->TE)."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge, BRepBuilderAPI_MakeWire
+    from OCP.BRepOffsetAPI import BRepOffsetAPI_ThruSections
+
+    loft = BRepOffsetAPI_ThruSections(solid, False, 1e-6)
+    for pm, pp in rows:
+        pp = pp.copy()
+        pp[0], pp[-1] = pm[0], pm[-1]
+        loft.AddWire(BRepBuilderAPI_MakeWire(BRepBuilderAPI_MakeEdge(_bspline(pm)).Edge(),
+                                             BRepBuilderAPI_MakeEdge(_bspline(pp[::-1])).Edge()).Wire())
+    loft.CheckCompatibility(False)
+    loft.Build()
+    return loft.Shape()
+
+
+def filleted_sector_solid(blisk, radius, blade_count, n_u=41):
+    """A sector whose blade meets the shroud with a fillet of ``radius`` [mm], the fillet faces of their own.
+
+    OCP's BRepFilletAPI_MakeFillet fails on the knife-edged blade's junction with the shroud (the leading and
+    trailing edge are corners of zero angle), so the fillet is built into the blade: a loft through rows of
+    the blade's faces sampled at the same (u, v), in which each face is moved outward along the circle by the
+    quarter circle ``radius - sqrt(radius^2 - (radius - d)^2)`` at the distance ``d`` below the shroud
+    (``radius`` at the shroud and beyond, none below ``radius``). The sector is then split (BRepAlgoAPI_Splitter)
+    by the surface of revolution ``radius`` below the shroud and fused again, so the blade's faces above it,
+    the fillet, are faces of their own, as a CAD fillet's are.
+    """
+    from OCP.BRepAlgoAPI import BRepAlgoAPI_Splitter
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge
+    from OCP.BRepPrimAPI import BRepPrimAPI_MakeRevol
+    from OCP.TopAbs import TopAbs_SOLID
+    from OCP.collections import List_TopoDS_Shape
+    from OCP.gp import gp_Ax1, gp_Dir, gp_Pnt
+
+    u = 0.5 - 0.5 * np.cos(np.linspace(0.0, np.pi, n_u))
+
+    def flared(points, sign):
+        x, r = points[:, 0], np.hypot(points[:, 1], points[:, 2])
+        th = np.arctan2(points[:, 2], points[:, 1])
+        d = np.clip(blisk.shroud.radius_at(x) - r, 0.0, radius)
+        delta = radius - np.sqrt(np.maximum(radius ** 2 - (radius - d) ** 2, 0.0))
+        return _cart(x, r, th + sign * delta / r)
+
+    rows = []
+    for v in np.r_[np.linspace(0.0, 0.8, 6), np.linspace(0.85, 1.0, 6)]:    # denser in the fillet
+        vv = np.full_like(u, v)
+        rows.append((flared(blisk.pressure_face.surface.evaluate(u, vv), -1.0),
+                     flared(blisk.suction_face.surface.evaluate(u, vv), +1.0)))
+    ends = []
+    for pm, pp in (rows[0], rows[-1]):
+        r_all = np.hypot(np.r_[pm[:, 1], pp[:, 1]], np.r_[pm[:, 2], pp[:, 2]])
+        d = r_all.min() - 0.5 if not ends else r_all.max() + 0.5          # one plane for both faces
+        mean = 0.5 * (np.arctan2(pm[:, 2], pm[:, 1]).mean() + np.arctan2(pp[:, 2], pp[:, 1]).mean())
+        ends.append(tuple(_cart(q[:, 0], d / np.cos(np.arctan2(q[:, 2], q[:, 1]) - mean), np.arctan2(q[:, 2], q[:, 1]))
+                          for q in (pm, pp)))
+    blade = _loft([ends[0]] + rows + [ends[1]])
+    solid = sector_solid(blisk, blade, blade_count)
+    # the splitting surface: the shroud profile moved down by the radius, revolved over the whole turn
+    x0, x1 = X_RANGE
+    pts = blisk.shroud.sample(x0 - 1, x1 + 1, step=1.0)
+    line = BRepBuilderAPI_MakeEdge(_bspline(np.column_stack([pts[:, 0], pts[:, 1] - radius, np.zeros(len(pts))]))).Edge()
+    tool = BRepPrimAPI_MakeRevol(line, gp_Ax1(gp_Pnt(0, 0, 0), gp_Dir(1, 0, 0)), 2 * np.pi).Shape()
+    split = BRepAlgoAPI_Splitter()
+    args, tools = List_TopoDS_Shape(), List_TopoDS_Shape()
+    args.Append(solid)
+    tools.Append(tool)
+    split.SetArguments(args)
+    split.SetTools(tools)
+    split.Build()
+    pieces = subshapes(split.Shape(), TopAbs_SOLID)
+    return fuse(pieces)
