@@ -23,11 +23,13 @@ import numpy as np
 import pytest
 
 from edm_planner.machining import executors
-from edm_planner.machining.electrode_set import Piece, SetDesigner, _plan_in_worker, candidate_sets
+from edm_planner.machining.electrode_set import Candidate, Piece, SetDesigner, _plan_in_worker, candidate_sets
 from edm_planner.machining.removal import _stock_in_parts
 from edm_planner.machining.swept_stock import Sweep, stock_at_points
 from edm_planner.machining.wall_samples import wall_samples
 from edm_planner.cnc.kinematics import axis_poses
+
+from conftest import CONFIG
 
 #: seconds any one wait of this file may take before it fails
 DEADLINE = 240.0
@@ -149,6 +151,27 @@ def test_proof_shares_on_the_nodes_give_the_serial_stock(cluster, steps, default
     assert stats
 
 
+@pytest.mark.slow
+def test_the_designer_sizes_a_candidates_pieces_on_the_nodes_and_reports_each_as_it_finishes(cluster, steps):
+    designer, tasks, _ = steps
+    records = []
+    designer.detail = records.append
+    piece = tasks[0][0]
+    cand = Candidate("two rear pieces", [Piece(piece.label, piece.electrode_id, piece.design) for _ in range(2)])
+    designer.t0 = time.perf_counter()
+    designer._where, designer._name, designer._fraction = (0, 1, 0, 2), cand.name, 0.0
+    assert designer._size_all(cand, 0, 1) == [True, True]
+    a, b = cand.pieces
+    assert a.tried == b.tried and a.plan.samples.tobytes() == b.plan.samples.tobytes()
+    assert a.cycle.certified and b.cycle.certified
+    finished = [r for r in records if "electrode sized (on node " in r.message]
+    assert len(finished) == 2 and len({r.message.rsplit("node ", 1)[1] for r in finished}) == 2
+    steps_seen = [r for r in records if r.sizing_step > 0 and r.piece == "rear"]
+    assert {r.piece_index for r in steps_seen} == {0, 1}          # the workers' steps, as they ran
+    fractions = [r.fraction for r in records]
+    assert fractions == sorted(fractions) and len(fractions) > len(finished)
+
+
 def _task_processes(nodes):
     """(pid) of the Ray worker processes of ``nodes`` running a task of the set designer now."""
     raylets = {p.process.pid for n in nodes for p in n.all_processes.get("raylet", [])}
@@ -197,3 +220,28 @@ def test_the_executor_kind_follows_the_address_and_ray_is_imported_only_for_ray(
             "print('ray' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.stdout.strip() == "False", out.stderr
+
+
+def test_edm_plan_hands_its_ray_address_to_the_set_designer(monkeypatch, tmp_path, field_cache):
+    import io
+
+    from edm_planner import cli
+    from edm_planner.machining import electrode_set
+
+    given = {}
+
+    class Stop(Exception):
+        pass
+
+    def designer(*args, **kwargs):
+        given.update(kwargs)
+        raise Stop("stop before designing")
+
+    monkeypatch.setattr(electrode_set, "SetDesigner", designer)
+    err = io.StringIO()
+    status = cli.main(["plan", "--geometry", str(CONFIG / "default_blisk.yaml"), "--channel", "0", "--out",
+                       str(tmp_path / "set"), "--cache-dir", field_cache, "--ray-address", "127.0.0.1:6379",
+                       "--progress", "none", "--store", "none"], out=io.StringIO(), err=err)
+    assert status != 0 and "stop before designing" in err.getvalue()
+    assert given["ray_address"] == "127.0.0.1:6379"
+    assert cli._parser().parse_args(["plan", "--geometry", "g.yaml", "--channel", "0", "--out", "o"]).ray_address == ""

@@ -293,20 +293,22 @@ class RayExecutor:
         ref.future().add_done_callback(done)
         return outer
 
-    def terminate(self):
-        """Stop at once: every task not finished is cancelled (its worker killed); waiting futures fail."""
+    def terminate(self, force=True):
+        """Stop at once: every task not finished is cancelled (``force``: its worker killed); waiting futures
+        fail."""
         with self._lock:
             refs = list(self._refs)
         for ref in refs:
             try:
-                self._ray.cancel(ref, force=True)
+                self._ray.cancel(ref, force=force)
             except Exception:                       # already finished
                 pass
 
     def shutdown(self, wait=True, cancel_futures=True):
-        """Cancel what is left (``cancel_futures``), drop the queue; stop a local Ray and remove its files."""
-        if cancel_futures and not wait:
-            self.terminate()
+        """Cancel what is left (``cancel_futures``; running tasks killed unless ``wait``), drop the queue; stop a
+        local Ray and remove its files (a cluster's tasks are not left running after a failed design)."""
+        if cancel_futures:
+            self.terminate(force=not wait)
         if self.reports is not None:
             try:
                 self.reports.shutdown(force=True)
