@@ -266,3 +266,31 @@ def test_refuses_no_symmetry(tmp_path):
     path = fx.write_step(_solid_box(10, 20, 30), tmp_path / "box.step")
     with pytest.raises(GeometryError, match="no rotational symmetry"):
         load_geometry(path)
+
+
+def test_refuses_a_sector_that_does_not_divide_the_turn(nominal, blade, tmp_path):
+    """A sector of 360/27.3 deg: the blade's angle repeats no whole number of times round the axis."""
+    b = nominal.blade
+    mean = 0.5 * (b.theta_minus.mean() + b.theta_plus.mean())
+    p = 2 * np.pi / 27.3
+    solid = fx.fuse([fx.fuse([fx.ring(nominal.hub, fx.R_BORE, p, mean - p / 2), blade]),
+                     fx.ring(nominal.shroud, fx.R_OUTER, p, mean - p / 2)])
+    path = fx.write_step(solid, tmp_path / "odd_sector.step")
+    with pytest.raises(GeometryError, match="no rotational symmetry: the sector spans 13.18.* deg, not 360/N"):
+        load_geometry(path)
+
+
+def test_length_unit_override(tmp_path):
+    """length_unit states the unit of the file's numbers over the one it declares (mm when written here)."""
+    from edm_planner.geometry.step_import import read_step_solid
+
+    path = fx.write_step(_solid_box(1, 2, 3), tmp_path / "box.step")
+    solid, info = read_step_solid(path)
+    assert info["declared_units"] == ["MILLIMETRE"] and info["scale"] == 1.0
+    solid, info = read_step_solid(path, length_unit="cm")
+    assert info["scale"] == 10.0
+    from edm_planner.geometry.step_import import _size
+    lo, hi = _size(solid)
+    assert np.allclose(hi - lo, [10, 20, 30], atol=1e-3)
+    with pytest.raises(GeometryError, match="length_unit"):
+        read_step_solid(path, length_unit="furlong")
