@@ -438,7 +438,16 @@ class _Rays:
             merged.append((float(start + length), False))
         if any(merged[i][1] == merged[i + 1][1] for i in range(len(merged) - 1)):
             return None
-        return [(merged[i][0], merged[i + 1][0]) for i in range(0, len(merged), 2)]
+        return merge_wrap([(merged[i][0], merged[i + 1][0]) for i in range(0, len(merged), 2)], start, length)
+
+
+def merge_wrap(stretches, start, length):
+    """Stretches of a whole turn with the one running through its start joined: (a, start + 2 pi) and
+    (start, b) become (a, b + 2 pi)."""
+    if (len(stretches) > 1 and length >= 2 * np.pi - 1e-12 and stretches[0][0] <= start + 1e-12
+            and stretches[-1][1] >= start + length - 1e-12):
+        return stretches[1:-1] + [(stretches[-1][0], stretches[0][1] + 2 * np.pi)]
+    return stretches
 
 
 def _wrap(theta):
@@ -658,13 +667,23 @@ def _mid_span_blades(rays, r_mid, x_lo, x_hi, n_x=41):
         return []
     best = np.nonzero(counts == counts.max())[0]
     i = int(best[len(best) // 2])
+    half_pitch = np.pi / counts.max()
     blades = []
     for a, b in found[i]:
         centre = 0.5 * (a + b)
-        near = [j for j, f in enumerate(found) if any(abs(_wrap(0.5 * (c + d) - centre)) < 0.5 * np.pi / max(1, counts.max())
-                                                       for c, d in f)]
-        blades.append({"theta": float(_wrap(centre)), "theta_span": float(b - a),
-                       "x_min": float(xs[min(near)]), "x_max": float(xs[max(near)])})
+        ends = []
+        for step in (-1, 1):                   # follow the blade station by station (it sweeps round the axis)
+            ref, j, last = centre, i, i
+            while 0 <= j + step < len(xs):
+                near = [0.5 * (c + d) for c, d in found[j + step] if abs(_wrap(0.5 * (c + d) - ref)) < half_pitch]
+                if not near:
+                    break
+                j += step
+                ref = ref + _wrap(min(near, key=lambda m: abs(_wrap(m - ref))) - ref)
+                last = j
+            ends.append(last)
+        blades.append({"theta": float(_wrap(centre)), "theta_span": float(b - a), "x": float(xs[i]),
+                       "x_min": float(xs[ends[0]]), "x_max": float(xs[ends[1]])})
     return blades
 
 
@@ -695,57 +714,72 @@ def _sections(rays, hub, shroud, blade0, pitch, zones, n_sec, n_st, n_check, x_l
                 float(shroud.radius_at(xs[sel]).min()) - zones["tip_fillet_depth"] - clear)
 
     reach = min(np.pi, 0.75 * pitch)
+    x_ref = blade0["x"]
 
-    def blade_at(x, r):
+    def blade_at(x, r, ref):
         """(theta_minus, theta_plus) of blade 0 on the circle (x, r), or None where it is not met: the stretch
-        of material nearest blade 0's mid-span angle on the arc of +-3/4 pitch about it (a stretch cut by the
-        arc's ends is a neighbour's or a wall's)."""
-        lo = theta0 - reach
+        of material nearest ``ref`` (blade 0's angle at a neighbouring station) on the arc of +-3/4 pitch
+        about it (a stretch cut by the arc's ends is a neighbour's or a wall's)."""
+        lo = ref - reach
         found = rays.circle(x, r, lo, 2 * reach)
         if not found:
             return None
         found = [ab for ab in found if ab[0] > lo + 1e-12 and ab[1] < lo + 2 * reach - 1e-12]
         if not found:
             return None
-        return min(found, key=lambda ab: abs(0.5 * (ab[0] + ab[1]) - theta0))
+        return min(found, key=lambda ab: abs(0.5 * (ab[0] + ab[1]) - ref))
+
+    def scan(r):
+        """Blade 0's angle at the stations of an axial grid where the circle meets it: followed station by
+        station from ``x_ref`` both ways (a blade sweeps round the axis along its chord by about a pitch)."""
+        grid = np.linspace(x_lo, x_hi, 81)
+        j0 = int(np.argmin(np.abs(grid - x_ref)))
+        ab = blade_at(grid[j0], r, theta0)
+        if ab is None:
+            raise GeometryError(f"{path}: blade 0 does not meet the cylinder r = {r:.4f} mm at x = {grid[j0]:.3f} mm")
+        centres = {j0: 0.5 * (ab[0] + ab[1])}
+        for step in (1, -1):
+            j, ref = j0 + step, centres[j0]
+            while 0 <= j < len(grid):
+                ab = blade_at(grid[j], r, ref)
+                if ab is None:
+                    break
+                ref = centres[j] = 0.5 * (ab[0] + ab[1])
+                j += step
+        return grid, centres
 
     def edges(r):
-        """Leading and trailing edge x of blade 0 on the cylinder r (bisection)."""
-        scan = np.linspace(x_lo, x_hi, 81)
-        met = np.array([blade_at(x, r) is not None for x in scan])
-        if not met.any():
-            raise GeometryError(f"{path}: blade 0 does not meet the cylinder r = {r:.4f} mm")
-        idx = np.nonzero(met)[0]
-        i0, i1 = int(idx[0]), int(idx[-1])
-        if not met[i0:i1 + 1].all():
-            raise GeometryError(f"{path}: blade 0's section on the cylinder r = {r:.4f} mm is not one loop")
+        """Leading and trailing edge x of blade 0 on the cylinder r (bisection), and its angle along x."""
+        grid, centres = scan(r)
+        i0, i1 = min(centres), max(centres)
 
-        def bisect(inside, outside):
+        def bisect(inside, outside, ref):
             for _ in range(30):
                 mid = 0.5 * (inside + outside)
-                if blade_at(mid, r) is not None:
+                if blade_at(mid, r, ref) is not None:
                     inside = mid
                 else:
                     outside = mid
             return inside
 
-        le = bisect(scan[i0], scan[i0 - 1]) if i0 > 0 else scan[0]
-        te = bisect(scan[i1], scan[i1 + 1]) if i1 < len(scan) - 1 else scan[-1]
-        return le, te
+        le = bisect(grid[i0], grid[i0 - 1], centres[i0]) if i0 > 0 else grid[0]
+        te = bisect(grid[i1], grid[i1 + 1], centres[i1]) if i1 < len(grid) - 1 else grid[-1]
+        keys = sorted(centres)
+        return le, te, grid[keys], np.array([centres[k] for k in keys])
 
     def section(r, edge_margin=1e-4):
-        le, te = edges(r)
+        le, te, along_x, along_theta = edges(r)
         u = 0.5 - 0.5 * np.cos(np.linspace(0.0, np.pi, n_st))
         x = le + (te - le) * (edge_margin + (1 - 2 * edge_margin) * u)
         tm, tp = np.empty(n_st), np.empty(n_st)
         mid = 0.5 * (le + te)
         for c, xc in enumerate(x):
-            ab = blade_at(xc, r)
+            ab = blade_at(xc, r, np.interp(xc, along_x, along_theta))
             for k in range(1, 30):              # a knife edge's two crossings can merge: step in a little
                 if ab is not None:
                     break
                 x[c] = xc = xc + (mid - xc) * 2e-4 * k
-                ab = blade_at(xc, r)
+                ab = blade_at(xc, r, np.interp(xc, along_x, along_theta))
             if ab is None:
                 raise GeometryError(f"{path}: the circle at x = {xc:.4f} mm, r = {r:.4f} mm misses blade 0 "
                                     f"between its edges")
@@ -757,7 +791,7 @@ def _sections(rays, hub, shroud, blade0, pitch, zones, n_sec, n_st, n_check, x_l
         raise GeometryError(f"{path}: no span clear of the walls and fillets to cut blade sections in "
                             f"(r {r_lo:.3f} .. {r_hi:.3f} mm)")
     # the limits again from the blade's edges at the two outermost cylinders, a little beyond them
-    e_lo, e_hi = edges(r_lo), edges(r_hi)
+    e_lo, e_hi = edges(r_lo)[:2], edges(r_hi)[:2]
     span = max(e_lo[1], e_hi[1]) - min(e_lo[0], e_hi[0])
     r_lo, r_hi = wall_limits(min(e_lo[0], e_hi[0]) - 0.02 * span, max(e_lo[1], e_hi[1]) + 0.02 * span)
     radii = np.linspace(r_lo, r_hi, n_sec)
