@@ -231,7 +231,8 @@ def filleted_sector_solid(blisk, radius, blade_count, n_u=41):
     # the splitting surface: the shroud profile moved down by the radius, revolved over the whole turn
     x0, x1 = X_RANGE
     pts = blisk.shroud.sample(x0 - 1, x1 + 1, step=1.0)
-    line = BRepBuilderAPI_MakeEdge(_bspline(np.column_stack([pts[:, 0], pts[:, 1] - radius, np.zeros(len(pts))]))).Edge()
+    moved = np.column_stack([pts[:, 0], pts[:, 1] - radius, np.zeros(len(pts))])
+    line = BRepBuilderAPI_MakeEdge(_bspline(moved)).Edge()
     tool = BRepPrimAPI_MakeRevol(line, gp_Ax1(gp_Pnt(0, 0, 0), gp_Dir(1, 0, 0)), 2 * np.pi).Shape()
     split = BRepAlgoAPI_Splitter()
     args, tools = List_TopoDS_Shape(), List_TopoDS_Shape()

@@ -10,24 +10,29 @@ no other geometry path pays for it) and finds what the loader's other sources gi
    the third axis). A part with neither is refused (no rotational symmetry). An axis that is not X is taken
    onto X by a rigid transform (the rotation of least angle taking its direction onto +X, the foot of the
    world origin on the axis onto the origin), reported and applied.
-3. **The blade count.** Whole blisk: the blades are counted by sectioning the solid on a coaxial cylinder at
-   mid span; they must be equally spaced (else: no rotational symmetry). Sector: from the sector angle
-   (the angular extent of the hub ring, measured by bisection on meridional rays), which must divide the full
-   turn.
+3. **The blade count.** Whole blisk: the blades are counted on the solid's section with the coaxial
+   cylinder at mid span (sampled by circles, one per axial station: the stretches of material on the circle
+   where the most blades are met); they must be equally spaced copies (else: no rotational symmetry). Sector:
+   from the sector angle (the angular extent of the hub ring, by bisection on meridional rays), which must
+   divide the full turn.
 4. **Hub and shroud profiles** from the meridional section: rays in meridional half-planes at several angles
    between the blades; per axial station the hub is the top of the first stretch of material (lowest over
    the angles, so a ray through a blade or its root fillet does not count), the shroud the bottom of the last.
-5. **The blade sections**, on coaxial cylinders at radii from the hub to the shroud, clear of the walls and of
-   any root or tip fillet: each cylinder's section of blade 0 is a closed loop, split at its axial extremes
-   (leading and trailing edge) into the -theta and +theta face; ``station_count`` stations per loop give a
-   :class:`~.sections.BladeSections` as the measured-sections path has it, which goes on through the same
-   NURBS reconstruction (:class:`~.blisk.Blisk` extends it into the walls).
+5. **The blade sections**, on ``section_count`` coaxial cylinders at radii from the hub to the shroud, clear of
+   the walls and of any root or tip fillet (faces lying wholly near a wall): on each, blade 0 (the blade
+   nearest theta = 0) is followed along the axis from station to station, its leading and trailing edge found
+   by bisection, and at ``station_count`` stations between them the circle (x, r) enters it at theta_minus and
+   leaves it at theta_plus. That is a :class:`~.sections.BladeSections` as the measured-sections path has it,
+   which goes on through the same NURBS reconstruction (:class:`~.blisk.Blisk` extends it into the walls).
 6. **Fit deviation** (:func:`fit_deviation`): sections on more cylinders, half way between the section radii,
    against the reconstructed faces (the largest distance along the circle, mm).
 
-OpenCascade has no function for steps 2 (choosing the axis among faces and inertia), 3 (counting and spacing
-the blades, the sector angle), 4 (the profiles from rays), 5 (loops to stations) and 6: they are written by
-hand here on top of its reader, topology explorer, boolean section, ray/face intersector and mass properties.
+Written by hand, because OpenCascade has no function for them: the free-edge count of step 1, the choice of
+the axis among the faces' axes and the inertia axes (step 2), counting the blades, their spacing and the
+sector angle (step 3), the profiles from rays (step 4), the fillet zones, following blade 0 and its edges and
+stations (step 5), and the fit (step 6). OCP gives the STEP reader, the topology explorer, each face's own
+axis, the mass properties, the tessellation and the curve/shape intersector (the crossings of a line or an
+arc with the faces, with the transition in or out) they are built on.
 
 Units: millimetres and radians (the reader converts the file's declared unit to mm). Frame W: X is the blisk
 axis, ``theta = atan2(z, y)``.
@@ -276,7 +281,7 @@ def find_axis(shape):
     for p, d, area in _face_axes(shape):
         for fam in families:
             q, e = fam[0], fam[1]
-            if abs(abs(float(d @ e)) - 1.0) < AXIS_ANGLE_TOL ** 2 / 2 + 1e-15 or np.linalg.norm(np.cross(d, e)) < AXIS_ANGLE_TOL:
+            if np.linalg.norm(np.cross(d, e)) < AXIS_ANGLE_TOL:
                 off = np.linalg.norm(np.cross(p - q, e))
                 if off < AXIS_OFFSET_TOL * size + 1e-9:
                     fam[2] += area
@@ -285,7 +290,8 @@ def find_axis(shape):
             families.append([p, d, area])
     if families:
         p, d, _ = max(families, key=lambda f: f[2])
-        return p, _canonical(d), f"faces of revolution ({len(families)} axis famil{'y' if len(families) == 1 else 'ies'}; the largest by area)"
+        plural = "y" if len(families) == 1 else "ies"
+        return p, _canonical(d), f"faces of revolution ({len(families)} axis famil{plural}; the largest by area)"
     from OCP.BRepGProp import BRepGProp
     from OCP.GProp import GProp_GProps
 
@@ -514,11 +520,11 @@ def import_step(path, section_count=25, station_count=81, length_unit=None, chec
                                 f"sections at mid span, not one")
     blade0 = min(loops, key=lambda lp: abs(_wrap(lp["theta"])))
     report.update({"kind": "whole blisk" if kind == "whole" else "sector", "blade_count": blade_count,
-                   "sector_angle": float(sector), "mid_span_radius": r_mid, "mid_span_loops": len(loops)})
+                   "sector_angle": float(sector), "mid_span_radius": r_mid, "mid_span_blades": len(loops)})
     zones = _fillet_zones(solid, hub, shroud)
     report.update(zones)
-    sections, check, radii = _sections(rays, hub, shroud, blade0, 2 * np.pi / blade_count, zones, section_count, station_count,
-                                       check_count, x_lo, x_hi, path)
+    sections, check, radii = _sections(rays, hub, shroud, blade0, 2 * np.pi / blade_count, zones, section_count,
+                                       station_count, check_count, x_lo, x_hi, path)
     report.update({"section_count": int(section_count), "station_count": int(station_count),
                    "section_radii": [float(radii[0]), float(radii[-1])]})
     return StepBlisk(sections, hub, shroud, blade_count, report, check)
