@@ -46,10 +46,11 @@ def cluster():
 
     if imported:
         executors._reread_ray_configuration()
-    c = Cluster(initialize_head=True, connect=False,
-                head_node_args={"num_cpus": 1, "include_dashboard": False, "temp_dir": temp,
-                                "object_store_memory": 200 * 1024 * 1024})
+    c = None
     try:
+        c = Cluster(initialize_head=True, connect=False,
+                    head_node_args={"num_cpus": 1, "include_dashboard": False, "temp_dir": temp,
+                                    "object_store_memory": 200 * 1024 * 1024})
         worker_node = c.add_node(num_cpus=1, object_store_memory=200 * 1024 * 1024)
         c.wait_for_nodes(timeout=60)
         ray.init(address=c.address, log_to_driver=False)
@@ -59,7 +60,8 @@ def cluster():
         yield c, [c.head_node, worker_node]
     finally:
         ray.shutdown()
-        c.shutdown()
+        if c is not None:
+            c.shutdown()
         executors._restore(previous)
         shutil.rmtree(temp, ignore_errors=True)
 

@@ -30,24 +30,26 @@ same path on every node, e.g. a shared file system) and builds it there where it
 seconds, once per node and geometry).
 
 The embedded default (:data:`DEFAULT_KIND`) is ``"local"``, decided by measurement on this 2-core machine
-(AMD EPYC family 25 model 1, 2 vCPU at 2.45 GHz, with other jobs running beside it: load average 4 to 5;
-``python -m edm_planner.bench --only scaleout``, 2026-11-27; docs/performance.md, "Scale-out with Ray"), the
-same 6 sizing steps of the default blisk's front/rear pieces from cold, the plans bit for bit the same in
-every run:
+(AMD EPYC family 25 model 1, 2 vCPU at 2.45 GHz, shared with other jobs: load average 4 to 6;
+``python -m edm_planner.bench --only scaleout``, three runs on 2026-11-27; docs/performance.md, "Scale-out
+with Ray"): the same 6 sizing steps of the default blisk's front/rear pieces, from cold (the executor
+started, its workers set up) and again on the warm workers; the plans bit for bit the serial ones in every
+run. Seconds, the three runs' values (the third run's warm pass):
 
-| executor | workers | start [s] | first task done [s] | all 6 done [s] |
-|---|---|---|---|---|
-| serial, in the caller | (2 threads) | | | 22.4 |
-| local spawn workers | 1 | 0.01 | 6.3 | 23.3 |
-| local spawn workers | 2 | 0.00 | 10.8 | 23.7 |
-| local Ray (on demand) | 1 | 10.8 | 21.3 | 32.5 |
-| local Ray (on demand) | 2 | 8.8 | 22.5 | 30.5 |
+| executor | workers | start | first task done | all 6, cold | all 6, warm |
+|---|---|---|---|---|---|
+| serial, in the caller | (2 threads) | | | 22.4, 13.0, 15.8 | |
+| local spawn workers | 1 | 0.01 | 6.3, 5.3, 7.0 | 23.3, 17.9, 19.4 | 11.3 |
+| local spawn workers | 2 | 0.00 | 10.8, 10.3, 10.7 | 23.7, 21.2, 16.1 | 4.1 |
+| local Ray (on demand) | 1 | 10.8, 7.4, 3.1 | 21.3, 15.3, 8.5 | 32.5, 24.7, 15.8 | 7.3 |
+| local Ray (on demand) | 2 | 8.8, 7.3, 4.1 | 22.5, 16.4, 9.9 | 30.5, 24.4, 17.5 | 7.8 |
 
-A local Ray costs a start of its own (the GCS, the raylet, the runtime-env agent, then worker processes that
-import the package and load the field: about 15 s more to the first result) and, on one machine, runs the
-same tasks in as many processes as the spawn pool, so it is slower here by 7 to 9 s a design; it pays on
-a cluster, where more cores than this machine's 2 take the tasks (``--ray-address``, the node parameter
-``ray_address``). Figures: :data:`MEASURED`.
+A local Ray costs a start of its own (the GCS, the raylet, the runtime-env agent: 3 to 11 s) and its first
+result comes 2 to 12 s later than a spawn pool's; on one machine it runs the same tasks in as many processes,
+so it gains nothing there. The local workers stay the default; Ray pays on a cluster, where more cores than
+this machine's 2 take the tasks (``--ray-address``, the node parameter ``ray_address``). The speed-up of 2
+workers over 1 on this busy machine is within its noise, cold (0.84 to 1.21) and warm (local 2.76, Ray
+0.93): the other jobs take the cores. Figures: :data:`MEASURED`.
 
 Bits: the core's figures depend on the thread count of numpy's BLAS (a sizing step of the rear piece gives
 other plan bits with ``OMP_NUM_THREADS=1`` than with 2), and Ray sets ``OMP_NUM_THREADS=1`` in its workers;
@@ -76,12 +78,14 @@ LOCAL, RAY = "local", "ray"
 DEFAULT_KIND = LOCAL
 #: a task whose worker process died is run again this often (Ray's ``max_retries``)
 MAX_RETRIES = 3
-#: what the choice of :data:`DEFAULT_KIND` rests on [s] (see the module's text): kind -> workers -> (start, first
-#: task done, all 6 done), and the serial run in the caller
-MEASURED = {"cpu": "AMD EPYC family 25 model 1, 2 vCPU, 2.45 GHz, load average 4 to 5 from other jobs",
-            "serial_s": 22.4,
-            "local": {1: (0.01, 6.3, 23.3), 2: (0.00, 10.8, 23.7)},
-            "ray": {1: (10.8, 21.3, 32.5), 2: (8.8, 22.5, 30.5)}}
+#: what the choice of :data:`DEFAULT_KIND` rests on [s] (see the module's text), three runs: kind -> workers ->
+#: (start, first task done, all 6 done cold) per run, and the serial runs in the caller
+MEASURED = {"cpu": "AMD EPYC family 25 model 1, 2 vCPU, 2.45 GHz, load average 4 to 6 from other jobs",
+            "serial_s": (22.4, 13.0, 15.8),
+            "local": {1: ((0.01, 6.3, 23.3), (0.01, 5.3, 17.9), (0.01, 7.0, 19.4)),
+                      2: ((0.00, 10.8, 23.7), (0.00, 10.3, 21.2), (0.00, 10.7, 16.1))},
+            "ray": {1: ((10.8, 21.3, 32.5), (7.4, 15.3, 24.7), (3.1, 8.5, 15.8)),
+                    2: ((8.8, 22.5, 30.5), (7.3, 16.4, 24.4), (4.1, 9.9, 17.5))}}
 
 def kind_for(address="", kind=None):
     """The executor kind: ``kind`` when given, Ray when an address is, else :data:`DEFAULT_KIND`."""
