@@ -93,8 +93,8 @@ def _parser():
                         "of the solid channel")
     q.add_argument("--ray-address", default="", metavar="HOST:PORT",
                    help="design an electrode set on this Ray cluster ('auto': the one this machine belongs to; "
-                        "started with `ray start --head`): its pieces and proof shares run as Ray tasks "
-                        "(default: local worker processes)")
+                        "started with `ray start --head`; 'local': a local Ray started for the design): its "
+                        "pieces and proof shares run as Ray tasks (default: local worker processes)")
     _store_argument(q)
     q.add_argument("--replan", action="store_true", help="plan anew even if the store has the plan of this request")
     _progress_argument(q)

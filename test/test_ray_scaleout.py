@@ -214,7 +214,7 @@ def test_a_task_whose_worker_is_killed_is_run_again_and_loses_nothing(cluster, s
 def test_the_executor_kind_follows_the_address_and_ray_is_imported_only_for_ray():
     assert executors.kind_for("") == executors.DEFAULT_KIND == "local"
     assert executors.kind_for("127.0.0.1:6379") == "ray"
-    assert executors.kind_for("", "ray") == "ray"
+    assert executors.kind_for("", "ray") == executors.kind_for("local") == "ray"
     with pytest.raises(ValueError):
         executors.kind_for("", "dask")
     import subprocess

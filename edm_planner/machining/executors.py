@@ -6,8 +6,8 @@ the removal proof. Both run in worker processes that hold the geometry, its dist
 field cache) and a designer of their own. :func:`make_executor` gives one interface over
 
 - ``"local"``: a spawn :class:`~concurrent.futures.ProcessPoolExecutor` on this machine (today's workers), and
-- ``"ray"``: Ray tasks, on a local Ray started on demand (``address=""``) or on an existing cluster
-  (``address="host:6379"`` or ``"auto"``, what ``ray start --head`` printed).
+- ``"ray"``: Ray tasks, on a local Ray started on demand (``address=""`` or ``"local"``) or on an existing
+  cluster (``address="host:6379"`` or ``"auto"``, what ``ray start --head`` printed).
 
 Both are :class:`concurrent.futures.Executor` in use: ``submit(fn, *args)`` returns a
 :class:`~concurrent.futures.Future`, so the designer and the removal simulation wait on them the same way.
@@ -74,6 +74,8 @@ from .set_progress import terminate_pool
 _log = logging.getLogger(__name__)
 
 LOCAL, RAY = "local", "ray"
+#: the Ray address that asks for a local Ray started on demand (``edm-plan plan --ray-address local``)
+LOCAL_RAY = "local"
 #: the executor when none is named and no Ray address is given (decided by measurement: see the module's text)
 DEFAULT_KIND = LOCAL
 #: a task whose worker process died is run again this often (Ray's ``max_retries``)
@@ -108,7 +110,8 @@ def make_executor(workers, initializer, initargs=(), *, address="", kind=None, r
         A module-level function run once in every worker before its first task.
     initargs : tuple
     address : str
-        A Ray cluster's address ("host:port" or "auto"); "" : none (a local Ray when ``kind`` is "ray").
+        A Ray cluster's address ("host:port" or "auto"), or "local" (a local Ray started on demand); "" : none
+        (a local Ray when ``kind`` is "ray").
     kind : str, optional
         "local" or "ray" (default: :func:`kind_for`).
     reports : bool
@@ -225,6 +228,7 @@ class RayExecutor:
 
     def __init__(self, workers, initializer, initargs=(), address="", reports=False, max_retries=MAX_RETRIES):
         t0 = time.perf_counter()
+        address = "" if address == LOCAL_RAY else address
         self._owned = None              # "local" (started here), "connected" (we connected), None (the caller's)
         self._temp_dir, self._environment = None, {}
         with _RAY_LOCK:
