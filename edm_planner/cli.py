@@ -207,8 +207,10 @@ def _check(args, out, err):
         raise EdmError(ErrorCode.INVALID_REQUEST, f"the plan was made for geometry {plan.geometry_id[:12]}, "
                                                   f"{args.geometry} is {geometry.geometry_id[:12]}")
     progress = _Progress(err, args.progress)
-    check = verify_exported_plan(args.plan_dir, geometry.blisk, threshold=args.threshold,
-                                 geometry_id=geometry.geometry_id, progress=progress, cache_dir=args.cache_dir)
+    own = geometry.for_channel(plan.channel)          # a blisk as measured: the plan's channel's own walls
+    check = verify_exported_plan(args.plan_dir, own.blisk, threshold=args.threshold,
+                                 geometry_id=geometry.geometry_id, progress=progress, cache_dir=args.cache_dir,
+                                 field_key=own.field_key)
     progress.close()
     clear = ", ".join(f"{s} {v:.4f}" for s, v in check.clearance_exact.items())
     print(f"clearance, exact minimum over every vertex at every sample [mm]: {clear}\nlargest vertex step {check.max_vertex_step:.4f} mm; "
@@ -358,7 +360,11 @@ def _plan_set(args, geometry, options, store, progress, out, err):
     from .records.set_files import write_set
 
     progress("field", 0.0, 0, 0.0, "distance field")
-    field = FastChannelField(geometry.blisk, spacing=0.1, cache_dir=args.cache_dir, cache_key=geometry.geometry_id)
+    # a blisk as measured: the channel's own two blades, and the set machines only its group's channels
+    channels = None if geometry.measured is None else next(
+        members for _, members, _ in geometry.channel_groups() if args.channel in members)
+    geometry = geometry.for_channel(args.channel)
+    field = FastChannelField(geometry.blisk, spacing=0.1, cache_dir=args.cache_dir, cache_key=geometry.field_key)
 
     def on_step(record):
         """A SetProgress record -> a progress line: candidate, piece, sizing step, percent, time left (estimate)."""
@@ -375,13 +381,13 @@ def _plan_set(args, geometry, options, store, progress, out, err):
         process = replace(process, rough_and_finish=False)
     stock = load_stock_mesh(args.stock_mesh) if args.stock_mesh else None
     designer = SetDesigner(geometry, field, options, SetOptions(time_budget=max(args.time_budget, 60.0) * 15),
-                           field_cache=(args.cache_dir, geometry.geometry_id), detail=on_step, process=process,
+                           field_cache=(args.cache_dir, geometry.field_key), detail=on_step, process=process,
                            process_resolution=args.volume_resolution, stock_mesh=stock, process_step=add_process,
                            ray_address=args.ray_address)
     result = designer.design(args.channel)
     not_kept = ""
     try:
-        path = write_set(result, args.out, geometry.blisk, store)
+        path = write_set(result, args.out, geometry.blisk, store, channels=channels)
     except PlanStoreError as exc:              # every file is written: only the store's copy is missing
         path, not_kept = pathlib.Path(args.out) / "set.json", exc.message
         print(f"warning: {exc.message}", file=err)
@@ -438,9 +444,9 @@ def _exported_plan(path):
 def _export_job(source, store_dir, all_channels):
     """What to export: dict(name, geometry_id, kind 'plan' | 'electrode_set' | 'blisk_program', plans, steps, pitch)."""
     # heavy, this command's only (see the note at the top)
-    from .machining.program import blisk_program_steps
+    from .machining.program import blisk_program_steps, channel_program_steps
 
-    def whole(kind, name, plans, steps, blade_count, program_name=None):
+    def whole(kind, name, plans, steps, blade_count, program_name=None, channels=None):
         if not all_channels or kind == "blisk_program":
             pitch = 2 * math.pi / blade_count if blade_count else None
             return dict(name=name, kind=kind, plans=plans, steps=steps, pitch=pitch)
@@ -448,6 +454,12 @@ def _export_job(source, store_dir, all_channels):
             raise EdmError(ErrorCode.INVALID_REQUEST, f"{name}: the blade count is unknown, so are the channels "
                                                       f"(export the set's directory or its program id instead)")
         ids = list(dict.fromkeys(p for p, _ in steps))
+        if channels is not None and sorted(channels) != list(range(blade_count)):
+            # a set of a blisk as measured machines its group's channels only: the others have walls of their own
+            return dict(name=f"{name}.channels", kind="blisk_program", plans=plans,
+                        steps=channel_program_steps([(steps[0][1], channels)], {steps[0][1]: ids}, blade_count,
+                                                    partial=True),
+                        pitch=2 * math.pi / blade_count)
         return dict(name=program_name or f"{name}.blisk", kind="blisk_program", plans=plans,
                     steps=blisk_program_steps(ids, blade_count), pitch=2 * math.pi / blade_count)
 
@@ -471,7 +483,7 @@ def _export_job(source, store_dir, all_channels):
         first = plans[entries[0][0]]
         name = doc.get("set_id") or f"set_{first.plan_id}"
         job = whole("electrode_set", name, plans, [(p, plans[p].channel) for p, _ in entries], counts.pop(),
-                    doc.get("program_id"))
+                    doc.get("program_id"), doc.get("channels"))
         return dict(job, geometry_id=first.geometry_id)
     if path.is_dir():
         plan, count = _exported_plan(path)
@@ -588,7 +600,7 @@ def _rough(args, out, err):
     stored = store.get(plan_id) if store is not None else None
     source = f"from the plan store {store.path} (planned {stored.created})" if stored is not None else ""
     if stored is None:
-        result = plan_roughing(geometry.blisk, args.channel, options, progress=progress)
+        result = plan_roughing(geometry.for_channel(args.channel).blisk, args.channel, options, progress=progress)
         stored = roughing_to_stored(result, plan_id, geometry.geometry_id)
         if store is not None:
             store.put(stored, plan_id)

@@ -43,7 +43,7 @@ def test_a_channel_of_its_own_is_the_parts_channel(measured, default_geometry):
     """Channel k's geometry has blade k's suction face and blade k+1's pressure face where the files put them."""
     g, offsets = measured
     own = g.for_channel(CHANNEL)
-    assert own is not g and own.channel == CHANNEL
+    assert own is not g and own.channel == CHANNEL and own.for_channel(5) is own
     assert own.geometry_id == g.geometry_id and own.field_key not in (g.field_key, g.geometry_id)
     assert g.for_channel(CHANNEL) is own                      # kept
     # at the measured stations (mid chord, mid span) the walls of channel k are the measured faces, in place
@@ -64,10 +64,12 @@ def test_a_channel_of_its_own_is_the_parts_channel(measured, default_geometry):
 
 def test_channels_of_nominal_blades_share_the_nominal_geometry(one_channel):
     g = one_channel
-    assert g.for_channel(0) is g and g.for_channel(CHANNEL + 2) is g
+    nominal = g.for_channel(0)
+    assert nominal.blisk is g.blisk and nominal.measured is None and nominal.field_key == g.geometry_id
+    assert g.for_channel(CHANNEL + 2) is nominal and g.for_channel(CHANNEL).measured is None
     # channels CHANNEL - 1 and CHANNEL + 1 each have one measured blade, but their walls are nominal
     for k in (CHANNEL - 1, CHANNEL + 1):
-        assert g.for_channel(k) is not g
+        assert g.for_channel(k).blisk is not g.blisk
         assert wall_deviation(g.blisk, g.for_channel(k).blisk) < 1e-9
     groups = g.channel_groups()
     assert [(rep, len(members)) for rep, members, _ in groups] == [(0, 59), (CHANNEL, 1)]
@@ -218,3 +220,127 @@ def test_the_blisk_program_uses_each_channels_own_plan(rear_cycle, own_channel, 
     assert np.array_equal(feed.samples, plan.samples)                 # the channel's own feed, not the nominal's
     with pytest.raises(EdmError, match="every group needs its own electrode set"):
         channel_program_steps(groups, {0: [nominal_plan.plan_id]}, 60)
+
+
+def test_the_set_designer_wants_the_channels_own_geometry(one_channel, default_field):
+    from edm_planner.machining.electrode_set import SetDesigner
+
+    with pytest.raises(EdmError, match=r"design the set of channel 43 on its own geometry, geometry.for_channel\(43\)"):
+        SetDesigner(one_channel, default_field, workers=1).design(CHANNEL)
+
+
+def test_measured_blades_travel_in_the_geometry_model(one_channel):
+    from edm_planner.geometry.as_measured import MeasuredBlades, channel_blisk
+
+    back = MeasuredBlades.from_dict(one_channel.measured.to_dict())
+    assert sorted(back.blades) == [CHANNEL, CHANNEL + 1] and back.tolerance == one_channel.measured.tolerance
+    view = channel_blisk(one_channel.blisk, back, CHANNEL)
+    assert wall_deviation(view, one_channel.for_channel(CHANNEL).blisk) == 0.0
+
+
+@pytest.mark.slow
+def test_check_interference_over_dds_measures_a_measured_channel_against_its_own_walls(one_channel, rear_cycle,
+                                                                                      field_cache):
+    """geometry_loader publishes the blisk as measured; interference_checker answers channel 43 on its own walls
+    (the same pose in a nominal channel keeps the discharge gap, in channel 43 it comes closer)."""
+    import threading
+    import time
+
+    from edm_planner_msgs.msg import BliskGeometry
+    from edm_planner_msgs.msg import ErrorCode as ErrorCodeMsg
+    from edm_planner_msgs.srv import CheckInterference
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from edm_planner.geometry.frames import rotation_about_x
+    from edm_planner.interference.pose_check import verify_poses
+    from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode
+    from edm_planner.nodes.interference_checker import InterferenceCheckerNode
+    from edm_planner.ros.conversions import matrix_to_pose
+    from ros_harness import InProcessRos
+
+    _, _, electrode, _, _, _ = rear_cycle
+    folder = one_channel.source.rsplit("/", 1)[0]
+    with InProcessRos() as ros:
+        ros.add(GeometryLoaderNode(context=ros.context, parameter_overrides=[
+            Parameter("geometry_file", value=one_channel.source), Parameter("allowed_directories", value=[folder])]))
+        ros.add(InterferenceCheckerNode(context=ros.context, parameter_overrides=[
+            Parameter("cache_dir", value=str(field_cache))]))
+        client = ros.add(Node("measured_client", context=ros.context))
+        got, ready = [], threading.Event()
+        client.create_subscription(BliskGeometry, "geometry", lambda m: (got.append(m), ready.set()), LATCHED)
+        assert ready.wait(120), "no geometry published"
+        gid = got[-1].summary.geometry_id
+        assert gid == one_channel.geometry_id and "as_measured" in got[-1].model_json
+        eid = got[-1].electrode_ids[0]
+        design_electrode = one_channel.electrode(eid)
+        answers = {}
+        for k in (0, CHANNEL):
+            pose = rotation_about_x(k * one_channel.blisk.pitch) @ design_electrode.final_pose
+            req = CheckInterference.Request(geometry_id=gid, channel=k, electrode_id=eid,
+                                            method=CheckInterference.Request.METHOD_EXACT)
+            req.poses = [matrix_to_pose(pose)]
+            deadline = time.monotonic() + 120
+            while True:                  # the checker may still be receiving the latched geometry
+                res = ros.call(client, CheckInterference, "check_interference", req, timeout=300)
+                if res.error_code.val != ErrorCodeMsg.UNKNOWN_ID or time.monotonic() > deadline:
+                    break
+                time.sleep(0.5)
+            assert res.error_code.val == ErrorCodeMsg.SUCCESS, res.message
+            c = res.clearances[0]
+            answers[k] = np.array([c.suction, c.pressure, c.hub, c.shroud])
+    np.testing.assert_allclose(answers[0], 0.1, atol=3e-6)            # a nominal channel: the gap everywhere
+    own = one_channel.for_channel(CHANNEL)
+    pose = rotation_about_x(CHANNEL * own.blisk.pitch) @ design_electrode.final_pose
+    expected = verify_poses(pose[None], design_electrode.mesh.vertices, CHANNEL, own.blisk, None,
+                            cache_dir=field_cache, cache_key=own.field_key).clearance_exact
+    np.testing.assert_allclose(answers[CHANNEL], [expected[s] for s in ("suction", "pressure", "hub", "shroud")],
+                               atol=1e-6)
+    assert answers[CHANNEL][:2].max() < 0.1 - 0.03                    # both walls came in by ~0.05 mm
+
+
+@pytest.mark.slow
+def test_edm_plan_plans_and_checks_a_measured_channel_on_its_own_walls(one_channel, own_channel, field_cache,
+                                                                     tmp_path):
+    """``edm-plan plan --channel 43`` on the blisk as measured gives the channel's own plan (the same as the
+    library's), ``edm-plan check`` re-checks it against the channel's own walls, ``geometry info`` names
+    the groups."""
+    import io
+
+    from edm_planner.cli import main
+    from edm_planner.records.plan_export import read_plan
+
+    def run(argv):
+        out, err = io.StringIO(), io.StringIO()
+        return main(argv, out, err), out.getvalue(), err.getvalue()
+
+    yaml = one_channel.source
+    rc, out, err = run(["plan", "--geometry", yaml, "--channel", str(CHANNEL), "--out", str(tmp_path / "plan"),
+                        "--cache-dir", str(field_cache), "--electrode", "rear", "--split", "front_rear",
+                        "--circumferential-reduction", "0.03", "--radial-reduction", "3", "--split-overlap", "1",
+                        "--exit-side", "downstream", "--margin-blade", "0.08", "--margin-hub-shroud", "0.08",
+                        "--store", "none", "--progress", "none"])
+    assert rc == 0, err
+    plan = read_plan(tmp_path / "plan")
+    assert plan.channel == CHANNEL and plan.doc["plan_id"] == own_channel[3].plan_id
+    np.testing.assert_allclose(plan.axes, own_channel[3].samples, atol=1e-9)
+    rc, out, err = run(["check", str(tmp_path / "plan"), "--geometry", yaml, "--threshold", "0.079",
+                        "--cache-dir", str(field_cache)])
+    assert rc == 0 and "passed" in out, out + err
+    rc, out, err = run(["geometry", "info", "--geometry", yaml])
+    assert rc == 0, err
+    assert "channel_groups: 2" in out and f"measured_blades: [{CHANNEL}, {CHANNEL + 1}]" in out, out
+
+
+def test_program_steps_of_groups_cover_each_channel_once():
+    from edm_planner.machining.program import channel_program_steps
+
+    groups = [(0, [0, 1, 3]), (2, [2])]
+    steps = channel_program_steps(groups, {0: ["a", "b"], 2: ["c"]}, 4)
+    assert steps == [("a", 0), ("a", 1), ("a", 3), ("b", 0), ("b", 1), ("b", 3), ("c", 2)]
+    with pytest.raises(EdmError, match="cover channels 0 .. 3 once each"):
+        channel_program_steps([(0, [0, 1])], {0: ["a"]}, 4)
+    with pytest.raises(EdmError, match="cover channels 0 .. 3 once each"):
+        channel_program_steps([(0, [0, 1, 2, 3]), (1, [1])], {0: ["a"], 1: ["b"]}, 4)
+    # one group's set alone: a program of its channels only (edm-plan export --all-channels of such a set)
+    assert channel_program_steps([(2, [2, 3])], {2: ["c"]}, 4, partial=True) == [("c", 2), ("c", 3)]

@@ -22,12 +22,14 @@ changes, at the grid's points), and :func:`channel_groups` puts channels that
 agree within a tolerance into one group that shares one plan.
 """
 
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import GeometryError
 from .blisk import Blisk
+from .sections import BladeSections
 
 #: meridional grid of :func:`wall_deviation`: stations along the axis and across the span
 DEVIATION_GRID = (60, 24)
@@ -53,9 +55,29 @@ class MeasuredBlades:
     tolerance: float = 0.005
     sources: dict = None
 
+    def to_dict(self):
+        """Plain data (the geometry topic's ``model_json`` carries it under ``as_measured``)."""
+        return {"tolerance": self.tolerance, "sources": {str(k): v for k, v in (self.sources or {}).items()},
+                "blades": {str(k): {"x": b.x.tolist(), "r": b.r.tolist(), "theta_minus": b.theta_minus.tolist(),
+                                    "theta_plus": b.theta_plus.tolist()} for k, b in self.blades.items()}}
+
+    @classmethod
+    def from_dict(cls, data):
+        """From :meth:`to_dict` output; None for None."""
+        if data is None:
+            return None
+        blades = {int(k): BladeSections(b["x"], b["r"], b["theta_minus"], b["theta_plus"])
+                  for k, b in data["blades"].items()}
+        return cls(blades, float(data["tolerance"]), {int(k): v for k, v in data.get("sources", {}).items()})
+
     def channel_blades(self, channel, blade_count):
         """(blade k, blade k+1) of channel k as given, None where nominal."""
         return self.blades.get(channel), self.blades.get((channel + 1) % blade_count)
+
+
+def channel_field_key(geometry_id, channel):
+    """The field-cache key of channel ``channel``'s own geometry on the blisk ``geometry_id`` as measured."""
+    return hashlib.sha256(f"{geometry_id}/channel/{int(channel)}".encode()).hexdigest()
 
 
 def to_blade_zero(sections, blade_index, blade_count):

@@ -46,8 +46,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import yaml
 
-from ..errors import GeometryError, GeometryFileError
-from .as_measured import MeasuredBlades, channel_blisk, channel_groups, to_blade_zero
+from ..errors import ErrorCode, GeometryError, GeometryFileError
+from .as_measured import MeasuredBlades, channel_blisk, channel_field_key, channel_groups, to_blade_zero
 from .blisk import Blisk, mesh_slice_overlap, validate_profiles
 from .centerline import channel_centerline
 from .electrode import ElectrodeDesign, design_electrodes
@@ -193,7 +193,7 @@ class LoadedGeometry:
     step_import: dict = None
     #: blades as measured (:class:`~.as_measured.MeasuredBlades`), None for a nominal (periodic) blisk
     measured: MeasuredBlades = None
-    #: the part's channel this geometry stands for (:meth:`for_channel`), None for the whole blisk
+    #: the part's channel whose own walls this geometry has (:meth:`for_channel`), None otherwise
     channel: int = None
     #: the key of this geometry's fast field in the field cache: ``geometry_id``, or per channel as measured
     field_key: str = None
@@ -206,26 +206,32 @@ class LoadedGeometry:
     def for_channel(self, channel):
         """The geometry channel ``channel`` is designed, planned and proven on.
 
-        For a nominal blisk: this geometry. For a blisk as measured: a geometry whose blisk has the
-        channel's own two blades (:func:`~.as_measured.channel_blisk`; its channel ``channel`` is the
-        part's), the same ``geometry_id`` (the part) and its own ``field_key``; this geometry where both
-        blades are nominal.
+        For a nominal blisk (or a channel's own geometry): this geometry. For a blisk as measured: a geometry
+        of that channel alone (``channel`` set, ``measured`` None, the same ``geometry_id``: the part's),
+        whose blisk has the channel's own two blades (:func:`~.as_measured.channel_blisk`: its channel
+        ``channel`` is the part's) and whose ``field_key`` is its own; where both blades are nominal, the
+        nominal blisk and field key, one geometry shared by all such channels.
         """
-        if self.measured is None or self.channel is not None:
+        if self.measured is None:
             return self
         n = self.blisk.blade_count
         if not (isinstance(channel, (int, np.integer)) and 0 <= channel < n):
-            raise GeometryError(f"channel must be an integer in 0 .. {n - 1}, got {channel!r}")
+            raise GeometryError(f"channel must be an integer in 0 .. {n - 1}, got {channel!r}",
+                                ErrorCode.INVALID_REQUEST)
         channel = int(channel)
         if channel not in self._channels:
             blisk = channel_blisk(self.blisk, self.measured, channel)
-            if blisk is self.blisk:
-                self._channels[channel] = self
+            nominal = blisk is self.blisk
+            if nominal and "nominal" in self._channels:
+                self._channels[channel] = self._channels["nominal"]
             else:
-                key = hashlib.sha256(f"{self.geometry_id}/channel/{channel}".encode()).hexdigest()
-                self._channels[channel] = LoadedGeometry(
-                    self.geometry_id, blisk, self.design, None, self.source, design_given=self.design_given,
-                    channel=channel, field_key=key)
+                own = LoadedGeometry(self.geometry_id, blisk, self.design, None, self.source,
+                                     design_given=self.design_given, channel=None if nominal else channel,
+                                     field_key=self.field_key if nominal else channel_field_key(self.geometry_id,
+                                                                                                channel))
+                self._channels[channel] = own
+                if nominal:
+                    self._channels["nominal"] = own
         return self._channels[channel]
 
     def channel_groups(self):
@@ -308,7 +314,7 @@ class LoadedGeometry:
             groups = self.channel_groups()
             n = self.blisk.blade_count
             out.update(measured_blades=sorted(self.measured.blades), as_measured_tolerance=self.measured.tolerance,
-                       channels_own_geometry=sum(self.for_channel(k) is not self for k in range(n)),
+                       channels_own_geometry=sum(self.for_channel(k).blisk is not self.blisk for k in range(n)),
                        channel_groups=len(groups),
                        largest_wall_deviation=max((max(g[2]) for g in groups), default=0.0))
         return out

@@ -619,6 +619,11 @@ class SetDesigner:
             self.close()
 
     def _design(self, channel):
+        if self.geometry.measured is not None:
+            # the pieces are planned in channel 0 and turned to ``channel``: right only on the channel's walls
+            raise EdmError(ErrorCode.INVALID_REQUEST,
+                           f"a blisk as measured: design the set of channel {channel} on its own geometry, "
+                           f"geometry.for_channel({channel}), with that geometry's field")
         self.t0 = time.perf_counter()
         self._report(0.0, "the axial range the electrodes can fill")
         self.base = replace(self.base, axial_range=self.closed_channel_range())

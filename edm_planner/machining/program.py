@@ -73,7 +73,7 @@ def blisk_program_steps(set_plan_ids, blade_count):
     return [(p, k) for p in ids for k in range(n)]
 
 
-def channel_program_steps(groups, group_plan_ids, blade_count):
+def channel_program_steps(groups, group_plan_ids, blade_count, partial=False):
     """Steps of the whole-blisk program of a blisk as measured: each channel machined with its own plans.
 
     Channels whose walls agree within the geometry's tolerance form a group
@@ -88,6 +88,8 @@ def channel_program_steps(groups, group_plan_ids, blade_count):
     group_plan_ids : dict
         Representative channel -> its set's plan ids in machining order.
     blade_count : int
+    partial : bool
+        Allow groups that leave channels out (a program of some channels: one group's set alone).
 
     Returns
     -------
@@ -96,7 +98,7 @@ def channel_program_steps(groups, group_plan_ids, blade_count):
     """
     n = int(blade_count)
     seen = sorted(k for g in groups for k in g[1])
-    if seen != list(range(n)):
+    if len(set(seen)) != len(seen) or not set(seen) <= set(range(n)) or (not partial and seen != list(range(n))):
         raise EdmError(ErrorCode.INVALID_REQUEST, f"the channel groups must cover channels 0 .. {n - 1} once each, "
                                                   f"got {seen}")
     steps = []

@@ -172,6 +172,8 @@ class GeometryLoaderNode(Node):
         model = geometry.blisk.to_dict()
         model["geometry_id"] = geometry.geometry_id
         model["electrode_design"] = geometry.design.to_dict()
+        if geometry.measured is not None:            # the blades as measured: every channel on its own walls
+            model["as_measured"] = geometry.measured.to_dict()
         msg.model_json = json.dumps(model)
         msg.surface_labels = list(CHANNEL_SURFACES)
         msg.surfaces = [mesh_to_msg(meshes[label]) for label in CHANNEL_SURFACES]

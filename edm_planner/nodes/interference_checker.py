@@ -46,6 +46,7 @@ DDS_SETUP = prepare_process()
 
 from .. import CACHE_ROOT
 from ..errors import EdmError, ErrorCode
+from ..geometry.as_measured import MeasuredBlades, channel_blisk, channel_field_key
 from ..geometry.blisk import Blisk
 from ..geometry.electrode import ElectrodeDesign, design_electrodes
 from ..interference.checker import ChannelChecker, CheckerOptions, Method
@@ -70,6 +71,8 @@ class InterferenceCheckerNode(Node):
         self.declare_parameter("prebuild_fast", True)
         self.declare_parameter("max_designs", 8)
         self.checkers = {}
+        self.measured = {}                  # geometry id -> its blades as measured (MeasuredBlades) or None
+        self.channel_checkers = {}          # (geometry id, channel) -> the checker of that channel's own walls
         self.designs = {}                   # geometry id -> the geometry file's electrode design
         # (geometry id, design) -> checker with those electrodes, least recently used first
         self.redesigned = collections.OrderedDict()
@@ -103,17 +106,36 @@ class InterferenceCheckerNode(Node):
             electrodes = {eid: (msg_to_mesh(m), pose_to_matrix(p))
                           for eid, m, p in zip(msg.electrode_ids, msg.electrodes, msg.electrode_final_poses)}
             checker = ChannelChecker(blisk, electrodes, gid, self._options())
+            measured = MeasuredBlades.from_dict(model.get("as_measured"))
         except Exception as exc:  # a geometry we cannot use must not take the node down
             self.get_logger().error(f"geometry {gid[:12]} not usable: {exc!r}")
             return
         with self._lock:
             self.checkers[gid] = checker
+            self.measured[gid] = measured
             self.designs[gid] = design
             self.latest = gid
         self.get_logger().info(f"geometry {gid[:12]}: {blisk.blade_count} channels, "
                                f"electrodes {sorted(electrodes)}")
         if self.get_parameter("prebuild_fast").value:
             threading.Thread(target=self._prebuild, args=(checker,), daemon=True).start()
+
+    def _own_channel(self, gid, checker, channel):
+        """The checker of channel ``channel``'s own walls on a blisk as measured (kept per channel), else ``checker``.
+
+        Its field is the channel's own (its key :func:`channel_field_key`), built on the first query."""
+        measured = self.measured.get(gid)
+        if measured is None or not 0 <= channel < checker.blisk.blade_count:
+            return checker               # nominal, or a bad channel that checker.validate refuses
+        blisk = channel_blisk(checker.blisk, measured, int(channel))
+        if blisk is checker.blisk:
+            return checker
+        with self._lock:
+            own = self.channel_checkers.get((gid, int(channel)))
+            if own is None:
+                own = ChannelChecker(blisk, checker.electrodes, channel_field_key(gid, int(channel)), self._options())
+                self.channel_checkers[(gid, int(channel))] = own
+        return own
 
     def _prebuild(self, checker):
         try:
@@ -139,6 +161,7 @@ class InterferenceCheckerNode(Node):
             raise EdmError(ErrorCode.INVALID_REQUEST, f"unknown method {request.method}") from None
         if not np.isfinite(request.threshold):
             raise EdmError(ErrorCode.INVALID_REQUEST, "threshold must be finite (mm)")
+        checker = self._own_channel(gid, checker, request.channel)
         checker = self._redesigned(gid, checker, request.electrode)
         mesh, final_pose = checker.electrode(request.electrode_id)
         poses = self._poses(request, checker, final_pose)

@@ -60,6 +60,7 @@ DDS_SETUP = prepare_process()
 
 from .. import CACHE_ROOT
 from ..errors import EdmError, ErrorCode
+from ..geometry.as_measured import MeasuredBlades
 from ..geometry.blisk import Blisk
 from ..geometry.electrode import ElectrodeDesign, design_electrodes
 from ..geometry.loader import LoadedGeometry
@@ -401,7 +402,8 @@ class TrajectoryPlannerNode(Node):
             prepared.blisk, prepared.design = blisk, design
             prepared.parsed.set()          # stored plans are answered from here on
             electrodes = design_electrodes(blisk, design)
-            prepared.geometry = LoadedGeometry(gid, blisk, design, electrodes, source=model.get("source", ""))
+            prepared.geometry = LoadedGeometry(gid, blisk, design, electrodes, source=model.get("source", ""),
+                                               measured=MeasuredBlades.from_dict(model.get("as_measured")))
             cache = self.get_parameter("cache_dir").value or CACHE_ROOT
             prepared.field = FastChannelField(blisk, spacing=float(self.get_parameter("fast_spacing").value),
                                               cache_dir=cache, cache_key=gid)
@@ -585,8 +587,15 @@ class TrajectoryPlannerNode(Node):
                                                        fraction=float(fraction), message=message))
 
             cache = self.get_parameter("cache_dir").value or CACHE_ROOT
-            designer = SetDesigner(prepared.geometry, prepared.field, options, set_options, cycle_options,
-                                   progress=progress, field_cache=(cache, gid), detail=detail, process=process,
+            # a blisk as measured: the channel's set is designed on its own two blades, with their field
+            geometry, field = prepared.geometry.for_channel(int(request.channel)), prepared.field
+            if geometry.field_key != prepared.geometry.field_key:
+                progress("field", 0.0, f"distance field of channel {request.channel} as measured")
+                field = FastChannelField(geometry.blisk, spacing=field.spacing, cache_dir=cache,
+                                         cache_key=geometry.field_key)
+            designer = SetDesigner(geometry, field, options, set_options, cycle_options,
+                                   progress=progress, field_cache=(cache, geometry.field_key), detail=detail,
+                                   process=process,
                                    process_resolution=resolution, stock_mesh=self.stock_mesh,
                                    process_step=add_process,
                                    ray_address=str(self.get_parameter("ray_address").value or ""))
@@ -679,7 +688,9 @@ class TrajectoryPlannerNode(Node):
                     request_id=f"{gid[:8]}/{request.channel}/roughing", stage=stage, fraction=float(fraction),
                     nodes=int(nodes), reference=float(reference), message=message))
 
-            result = plan_roughing(prepared.geometry.blisk, int(request.channel), options, progress=progress)
+            # a blisk as measured: the channel's own walls (its channel k is the part's)
+            result = plan_roughing(prepared.geometry.for_channel(int(request.channel)).blisk, int(request.channel),
+                                   options, progress=progress)
             stored = roughing_to_stored(result, plan_id, gid)
             note = self._keep(stored, plan_id)
         else:

@@ -71,7 +71,8 @@ class PlanCheck:
 
 
 def verify_exported_plan(path, blisk, threshold=0.0, max_step=MAX_VERTEX_STEP, anchor_stride=256,
-                         geometry_id=None, progress=None, field=None, cache_dir=None, anchor_travel=0.5):
+                         geometry_id=None, progress=None, field=None, cache_dir=None, anchor_travel=0.5,
+                         field_key=None):
     """Re-check an export directory with the exact clearance of every electrode vertex at every sample.
 
     Reads electrode.stl and the sample poses (not the planner's objects) and
@@ -105,6 +106,9 @@ def verify_exported_plan(path, blisk, threshold=0.0, max_step=MAX_VERTEX_STEP, a
     cache_dir : path, optional
     anchor_travel : float
         Largest vertex travel between anchors of the side tests [mm] (:func:`verify_poses`).
+    field_key : str, optional
+        The field's cache key when not the plan's geometry id (a channel's own geometry on a blisk as measured,
+        ``LoadedGeometry.for_channel(channel).field_key``; ``blisk`` is then that geometry's).
 
     Returns
     -------
@@ -135,7 +139,7 @@ def verify_exported_plan(path, blisk, threshold=0.0, max_step=MAX_VERTEX_STEP, a
 
     check = verify_poses(P, V, ch, blisk, field, threshold=threshold, anchor_stride=anchor_stride,
                          anchor_travel=anchor_travel, faces=plan.electrode_mesh.faces,
-                         cache_dir=cache_dir, cache_key=plan.geometry_id, progress=progress)
+                         cache_dir=cache_dir, cache_key=field_key or plan.geometry_id, progress=progress)
     problems = [] if check.passed else [check.message]
     if check.max_vertex_step > max_step + 1e-12:
         problems.append(f"a vertex moves {check.max_vertex_step:.4f} mm between samples (limit {max_step} mm)")

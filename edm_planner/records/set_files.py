@@ -19,7 +19,7 @@ from .stock_maps import plot_stock_maps, stock_vertex_colours
 from .store import PlanStoreError, plan_to_stored
 
 
-def write_set(result, out_dir, blisk, store=None):
+def write_set(result, out_dir, blisk, store=None, channels=None):
     """Write a designed set: one plan export per electrode (with its cycle), set.json and the stock maps.
 
     Parameters
@@ -34,6 +34,9 @@ def write_set(result, out_dir, blisk, store=None):
         every file is written: a store that cannot take them (a full disk)
         loses no file; :class:`~.store.PlanStoreError` is raised
         at the end, naming the plans not kept.
+    channels : list of int, optional
+        The channels the set may machine (``set.json`` ``channels``): on a blisk as measured, the group of
+        channels whose walls agree with the designed one's (``LoadedGeometry.channel_groups``); None: all.
 
     Returns
     -------
@@ -48,6 +51,8 @@ def write_set(result, out_dir, blisk, store=None):
     doc = json_safe(result.to_dict())
     doc["format"] = "edm_planner.electrode_set/1"
     doc["units"] = {"length": "mm", "angle": "rad", "time": "s"}
+    if channels is not None:
+        doc["channels"] = sorted(int(k) for k in channels)
     chosen = result.delivered
     if chosen is not None:
         doc["electrodes"] = []
