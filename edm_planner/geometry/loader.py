@@ -345,6 +345,17 @@ def _known(spec, allowed, where):
         raise GeometryError(f"{where}: unknown key(s) {unknown}; known: {sorted(allowed)}")
 
 
+def _slice_counts(spec, where):
+    """``section_count`` (default 25, at least 4) and ``station_count`` (81, at least 8) of a sliced source."""
+    counts = {}
+    for key, default, lo in (("section_count", 25, 4), ("station_count", 81, 8)):
+        v = spec.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int) or v < lo or v > 1000:
+            raise GeometryError(f"{where}.{key}: must be an integer in {lo} .. 1000, got {v!r}")
+        counts[key] = v
+    return counts
+
+
 def _blade(spec, hub, shroud, files):
     if not isinstance(spec, dict):
         raise GeometryError("blade: expected a mapping with exactly one of parametric, sections, mesh")
@@ -377,12 +388,7 @@ def _blade(spec, hub, shroud, files):
     scale = unit_scale(sub.get("length_unit", "mm"), "blade.mesh")
     if scale != 1.0:
         mesh.apply_scale(scale)
-    counts = {}
-    for key, default, lo in (("section_count", 25, 4), ("station_count", 81, 8)):
-        v = sub.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, int) or v < lo or v > 1000:
-            raise GeometryError(f"blade.mesh.{key}: must be an integer in {lo} .. 1000, got {v!r}")
-        counts[key] = v
+    counts = _slice_counts(sub, "blade.mesh")
     sections, report = mesh_to_sections_with_report(mesh, counts["section_count"], counts["station_count"],
                                                     hub=hub, shroud=shroud, overlap=mesh_slice_overlap(hub, shroud))
     return sections, source, report
@@ -501,12 +507,7 @@ def _step(spec, files):
         raise GeometryError("step: expected a file name or a mapping with a 'file' key")
     _known(spec, {"file", "length_unit", "section_count", "station_count"}, "step")
     path = files.resolve(spec.get("file"), "step.file", "step")
-    counts = {}
-    for key, default, lo in (("section_count", 25, 4), ("station_count", 81, 8)):
-        v = spec.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, int) or v < lo or v > 1000:
-            raise GeometryError(f"step.{key}: must be an integer in {lo} .. 1000, got {v!r}")
-        counts[key] = v
+    counts = _slice_counts(spec, "step")
     return import_step(path, counts["section_count"], counts["station_count"], spec.get("length_unit"))
 
 
