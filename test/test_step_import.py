@@ -222,6 +222,18 @@ def test_step_yaml_form(sector, tmp_path):
     from edm_planner.geometry.loader import FileLimits
     with pytest.raises(EdmError, match="larger than the limit for step files"):
         load_geometry(tmp_path / "g.yaml", limits=FileLimits(step_bytes=1000))
+    # a STEP blisk's blades as measured too: blade 1 given as the imported blade itself, in its place
+    g = load_geometry(tmp_path / "g.yaml")
+    b = g.blisk.blade.rotated(g.blisk.pitch)
+    rows = ["section,x,r,theta_1,theta_2"] + [
+        f"{i},{float(b.x[i, j])!r},{float(b.r[i, j])!r},{float(b.theta_minus[i, j])!r},{float(b.theta_plus[i, j])!r}"
+        for i in range(b.shape[0]) for j in range(b.shape[1])]
+    (tmp_path / "blade01.csv").write_text("\n".join(rows) + "\n")
+    (tmp_path / "m.yaml").write_text("step: {file: blisk.step, section_count: 9, station_count: 41}\n"
+                                     "as_measured:\n  blades:\n    - {blade: 1, sections: {file: blade01.csv}}\n")
+    m = load_geometry(tmp_path / "m.yaml")
+    assert sorted(m.measured.blades) == [1] and m.for_channel(1).blisk is not m.blisk
+    assert [len(members) for _, members, _ in m.channel_groups()] == [30]      # equal to nominal: one group
 
 
 def _solid_box(dx, dy, dz, at=(0, 0, 0)):

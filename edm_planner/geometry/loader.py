@@ -527,14 +527,7 @@ def _build_step(doc, files, source):
                   part_axial_range=doc.get("part_axial_range"))
     deviation, points = fit_deviation(blisk, found)
     report = dict(found.report, fit_deviation_mm=deviation, fit_points=points)
-    design = ElectrodeDesign.from_dict(doc.get("electrode"))
-    design_given = doc.get("electrode") is not None
-    electrodes = design_electrodes(blisk, design) if design_given else None
-    digest = hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode())
-    for fname, h in files.hashes:
-        digest.update(f"\0{fname}\0{h}".encode())
-    return LoadedGeometry(digest.hexdigest(), blisk, design, electrodes, source, design_given=design_given,
-                          step_import=report)
+    return _loaded(doc, files, source, blisk, step_import=report)
 
 
 def build_geometry(doc, files, source=""):
@@ -557,6 +550,11 @@ def build_geometry(doc, files, source=""):
         raise GeometryError("name: must be a string")
     blisk = Blisk(doc["blade_count"], hub, shroud, blade, name=name, source=blade_source, knot_rule=knot_rule,
                   part_axial_range=doc.get("part_axial_range"))
+    return _loaded(doc, files, source, blisk, blade_slicing=slicing)
+
+
+def _loaded(doc, files, source, blisk, **found):
+    """The LoadedGeometry of a built blisk (any source): blades as measured, the electrode design, the id."""
     measured = _as_measured(doc.get("as_measured"), blisk, files) if "as_measured" in doc else None
     design = ElectrodeDesign.from_dict(doc.get("electrode"))
     design_given = doc.get("electrode") is not None
@@ -565,8 +563,8 @@ def build_geometry(doc, files, source=""):
     digest = hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode())
     for fname, h in files.hashes:
         digest.update(f"\0{fname}\0{h}".encode())
-    return LoadedGeometry(digest.hexdigest(), blisk, design, electrodes, source,
-                          design_given=design_given, blade_slicing=slicing, measured=measured)
+    return LoadedGeometry(digest.hexdigest(), blisk, design, electrodes, source, design_given=design_given,
+                          measured=measured, **found)
 
 
 def _as_measured(spec, blisk, files):
