@@ -123,17 +123,24 @@ def _grid(blisk):
     return np.repeat(x, nr), R.ravel()
 
 
+def _deviation(walls_a, walls_b, r):
+    """Largest ``r * |d theta|`` of either wall where both channels have it (inf where none)."""
+    (a_s, a_p, a_in), (b_s, b_p, b_in) = walls_a, walls_b
+    both = a_in & b_in
+    if not both.any():
+        return np.inf
+    return float(max(np.max(np.abs(a_s - b_s)[both] * r[both]), np.max(np.abs(a_p - b_p)[both] * r[both])))
+
+
 def wall_deviation(a, b):
     """How far the walls of channel 0 of two blisks differ [mm]: the largest ``r * |d theta|`` of the suction
     and of the pressure wall over a 60 x 24 meridional grid of ``a`` (a sampled figure, not a bound between
     the grid's points)."""
     x, r = _grid(a)
-    ta_s, ta_p, ina = a.wall_angles(x, r)
-    tb_s, tb_p, inb = b.wall_angles(x, r)
-    both = ina & inb
-    if not both.any():
+    dev = _deviation(a.wall_angles(x, r), b.wall_angles(x, r), r)
+    if not np.isfinite(dev):
         raise GeometryError("wall_deviation: the two channels' walls have no meridional point in common")
-    return float(max(np.max(np.abs(ta_s - tb_s)[both] * r[both]), np.max(np.abs(ta_p - tb_p)[both] * r[both])))
+    return dev
 
 
 def channel_groups(views, tolerance):
@@ -155,20 +162,13 @@ def channel_groups(views, tolerance):
 
     def walls(view):
         if id(view) not in angles:
-            th_s, th_p, inside = view.wall_angles(x, r)
-            angles[id(view)] = (th_s, th_p, inside)
+            angles[id(view)] = view.wall_angles(x, r)
         return angles[id(view)]
 
     groups = []
     for k, view in enumerate(views):
         for rep, members, devs in groups:
-            if views[rep] is view:
-                dev = 0.0
-            else:
-                (a_s, a_p, a_in), (b_s, b_p, b_in) = walls(views[rep]), walls(view)
-                both = a_in & b_in
-                dev = np.inf if not both.any() else float(max(np.max(np.abs(a_s - b_s)[both] * r[both]),
-                                                              np.max(np.abs(a_p - b_p)[both] * r[both])))
+            dev = 0.0 if views[rep] is view else _deviation(walls(views[rep]), walls(view), r)
             if dev <= tolerance:
                 members.append(k)
                 devs.append(dev)

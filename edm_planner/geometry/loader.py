@@ -201,7 +201,8 @@ class LoadedGeometry:
     def __post_init__(self):
         if self.field_key is None:
             self.field_key = self.geometry_id
-        self._channels = {}
+        self._channels = {}             # channel -> its geometry (for_channel), a blisk as measured only
+        self._nominal = None             # the one geometry of all its channels with nominal walls
 
     def for_channel(self, channel):
         """The geometry channel ``channel`` is designed, planned and proven on.
@@ -221,17 +222,15 @@ class LoadedGeometry:
         channel = int(channel)
         if channel not in self._channels:
             blisk = channel_blisk(self.blisk, self.measured, channel)
-            nominal = blisk is self.blisk
-            if nominal and "nominal" in self._channels:
-                self._channels[channel] = self._channels["nominal"]
+            if blisk is self.blisk:
+                if self._nominal is None:
+                    self._nominal = LoadedGeometry(self.geometry_id, blisk, self.design, None, self.source,
+                                                   design_given=self.design_given)
+                self._channels[channel] = self._nominal
             else:
-                own = LoadedGeometry(self.geometry_id, blisk, self.design, None, self.source,
-                                     design_given=self.design_given, channel=None if nominal else channel,
-                                     field_key=self.field_key if nominal else channel_field_key(self.geometry_id,
-                                                                                                channel))
-                self._channels[channel] = own
-                if nominal:
-                    self._channels["nominal"] = own
+                self._channels[channel] = LoadedGeometry(
+                    self.geometry_id, blisk, self.design, None, self.source, design_given=self.design_given,
+                    channel=channel, field_key=channel_field_key(self.geometry_id, channel))
         return self._channels[channel]
 
     def channel_groups(self):

@@ -813,7 +813,6 @@ def _plan_in_worker(piece, h, radial):
     return piece, plan
 
 
-_drain = drain          # the old private name
 
 
 def certificate_against_proof(candidate, report):

@@ -127,14 +127,15 @@ class InterferenceCheckerNode(Node):
         measured = self.measured.get(gid)
         if measured is None or not 0 <= channel < checker.blisk.blade_count:
             return checker               # nominal, or a bad channel that checker.validate refuses
-        blisk = channel_blisk(checker.blisk, measured, int(channel))
-        if blisk is checker.blisk:
-            return checker
+        key = (gid, int(channel))
         with self._lock:
-            own = self.channel_checkers.get((gid, int(channel)))
-            if own is None:
-                own = ChannelChecker(blisk, checker.electrodes, channel_field_key(gid, int(channel)), self._options())
-                self.channel_checkers[(gid, int(channel))] = own
+            own = self.channel_checkers.get(key)
+        if own is None:                  # built once per channel (the channel's blisk is validated on the way)
+            blisk = channel_blisk(checker.blisk, measured, int(channel))
+            own = checker if blisk is checker.blisk else ChannelChecker(
+                blisk, checker.electrodes, channel_field_key(gid, int(channel)), self._options())
+            with self._lock:
+                own = self.channel_checkers.setdefault(key, own)
         return own
 
     def _prebuild(self, checker):
