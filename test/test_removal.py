@@ -42,7 +42,10 @@ def moved(points, t):
     return points @ t[:3, :3].T + t[:3, 3]
 
 
-def test_signed_distance_equals_libigl_pseudonormal():
+def test_signed_distance_equals_libigl_pseudonormal(monkeypatch):
+    # trimesh's contains() casts a second ray in a direction from an unseeded generator where its first rays
+    # disagree (points 1e-3 from a vertex): seeded here, so the reference is the same in every run
+    monkeypatch.setattr(trimesh.util, "random_generator", lambda seed=None: np.random.default_rng(0))
     rng = np.random.default_rng(0)
     for mesh in (box(1.0, 1.5, 2.0), trimesh.creation.icosphere(2), trimesh.creation.capsule(2.0, 0.5)):
         points = np.vstack([rng.uniform(-3, 3, (300, 3)),
