@@ -333,7 +333,7 @@ class _BliskProbe:
             a, b = max(a, start), min(b, start + length)
             if a < b:
                 out.append((a, b))
-        from edm_planner.geometry.step_import import merge_wrap
+        from edm_planner.geometry.solid_sections import merge_wrap
 
         return merge_wrap(out, start, length)
 
@@ -343,17 +343,17 @@ def test_blade_zero_is_followed_round_a_sixty_blade_blisk(nominal):
     (0.107 rad against 0.052 rad): the sections must follow blade 0 station by station, not take the blade
     nearest its mid-span angle. Checked on the parametric blisk itself through the probe's interface, without
     a STEP file (fusing 60 blades takes minutes)."""
-    from edm_planner.geometry import step_import as si
+    from edm_planner.geometry import solid_sections as si
 
     probe = _BliskProbe(nominal)
     hub, shroud = nominal.hub, nominal.shroud
     x_lo, x_hi = -4.0, 29.0
-    blades = si._mid_span_blades(probe, 110.0, x_lo, x_hi)
-    assert si._whole_count(blades, "probe", 110.0) == 60
-    blade0 = min(blades, key=lambda b: abs(si._wrap(b["theta"])))
+    blades = si.mid_span_blades(probe, 110.0, x_lo, x_hi)
+    assert si.whole_count(blades, "probe", 110.0) == 60
+    blade0 = min(blades, key=lambda b: abs(si.wrap_angle(b["theta"])))
     zones = {"root_fillet_depth": 0.0, "tip_fillet_depth": 0.0}
-    sections, check, radii = si._sections(probe, hub, shroud, blade0, nominal.pitch, zones, 9, 41, 2, x_lo, x_hi,
-                                          "probe")
+    sections, check, radii = si.blade_sections(probe, hub, shroud, blade0, nominal.pitch, zones, 9, 41, 2, x_lo,
+                                               x_hi, "probe")
     tm, _ = nominal.pressure_face.theta_at(sections.x.ravel(), sections.r.ravel())
     tp, _ = nominal.suction_face.theta_at(sections.x.ravel(), sections.r.ravel())
     # every station on blade 0 itself (not a neighbour a pitch away)

@@ -512,7 +512,7 @@ def _step(spec, files):
 
 def _build_step(doc, files, source):
     """:class:`LoadedGeometry` of a document with a ``step:`` source."""
-    from .step_import import fit_deviation
+    from .solid_sections import fit_deviation
 
     both = [k for k in STEP_REPLACES if k in doc]
     if both:

@@ -47,6 +47,8 @@ from ..errors import GeometryError, GeometryFileError
 from .profiles import RevolutionProfile
 from .readers import unit_scale
 from .sections import BladeSections
+from .solid_sections import (angular_extent, blade_sections, merge_wrap, mid_span_blades, walls, whole_count,
+                             wrap_angle)
 
 _log = logging.getLogger(__name__)
 
@@ -56,12 +58,8 @@ AXIS_ANGLE_TOL = 1e-6
 AXIS_OFFSET_TOL = 1e-6
 #: two principal moments of inertia are equal (an axis of symmetry) within this relative difference
 INERTIA_TOL = 1e-4
-#: the blades' angular positions at mid span may differ from equal spacing by this fraction of the pitch
-SPACING_TOL = 0.01
 #: a sector angle must be 2*pi/N within this fraction of it
 SECTOR_TOL = 0.002
-#: the blade sections keep this fraction of the smallest channel height clear of the walls (and of fillets)
-WALL_CLEARANCE = 0.01
 #: a blade face whose points all lie within this fraction of the channel height of a wall is a fillet there
 FILLET_ZONE = 0.3
 #: STEP unit names (as the file declares them) -> LENGTH_UNITS names
@@ -447,19 +445,6 @@ class _Rays:
         return merge_wrap([(merged[i][0], merged[i + 1][0]) for i in range(0, len(merged), 2)], start, length)
 
 
-def merge_wrap(stretches, start, length):
-    """Stretches of a whole turn with the one running through its start joined: (a, start + 2 pi) and
-    (start, b) become (a, b + 2 pi)."""
-    if (len(stretches) > 1 and length >= 2 * np.pi - 1e-12 and stretches[0][0] <= start + 1e-12
-            and stretches[-1][1] >= start + length - 1e-12):
-        return stretches[1:-1] + [(stretches[-1][0], stretches[0][1] + 2 * np.pi)]
-    return stretches
-
-
-def _wrap(theta):
-    return (theta + np.pi) % (2 * np.pi) - np.pi
-
-
 # -- the import ----------------------------------------------------------------------------------------
 def import_step(path, section_count=25, station_count=81, length_unit=None, check_count=4):
     """Read a STEP blisk (whole or one sector) and find its axis, blade count, hub, shroud and blade sections.
@@ -498,16 +483,16 @@ def import_step(path, section_count=25, station_count=81, length_unit=None, chec
     x_lo, x_hi = float(lo[0]), float(hi[0])
     rays = _Rays(solid, r_max)
     # the angular extent of the part at the axial middle: the hub ring's (whole turn or a sector)
-    kind, sector, angles = _angular_extent(rays, x_lo, x_hi)
-    hub, shroud, walls = _walls(rays, x_lo, x_hi, angles)
-    report.update(walls)
+    kind, sector, angles = angular_extent(rays, x_lo, x_hi)
+    hub, shroud, found = walls(rays, x_lo, x_hi, angles)
+    report.update(found)
     mid_x = 0.5 * (max(hub.x_range[0], shroud.x_range[0]) + min(hub.x_range[1], shroud.x_range[1]))
     r_mid = 0.5 * float(hub.radius_at(mid_x) + shroud.radius_at(mid_x))
-    loops = _mid_span_blades(rays, r_mid, x_lo, x_hi)
+    loops = mid_span_blades(rays, r_mid, x_lo, x_hi)
     if not loops:
         raise GeometryError(f"{path}: no blade meets the cylinder at mid span (r = {r_mid:.3f} mm): not a blisk")
     if kind == "whole":
-        blade_count = _whole_count(loops, path, r_mid)
+        blade_count = whole_count(loops, path, r_mid)
     else:
         blade_count = int(round(2 * np.pi / sector))
         if blade_count < 2 or abs(blade_count * sector - 2 * np.pi) > SECTOR_TOL * 2 * np.pi:
@@ -518,99 +503,17 @@ def import_step(path, section_count=25, station_count=81, length_unit=None, chec
         if len(loops) != 1:
             raise GeometryError(f"{path}: a sector of {np.degrees(sector):.4g} deg holds {len(loops)} blade "
                                 f"sections at mid span, not one")
-    blade0 = min(loops, key=lambda lp: abs(_wrap(lp["theta"])))
+    blade0 = min(loops, key=lambda lp: abs(wrap_angle(lp["theta"])))
     report.update({"kind": "whole blisk" if kind == "whole" else "sector", "blade_count": blade_count,
                    "sector_angle": float(sector), "mid_span_radius": r_mid, "mid_span_blades": len(loops)})
     zones = _fillet_zones(solid, hub, shroud)
     report.update(zones)
-    sections, check, radii = _sections(rays, hub, shroud, blade0, 2 * np.pi / blade_count, zones, section_count,
+    sections, check, radii = blade_sections(rays, hub, shroud, blade0, 2 * np.pi / blade_count, zones, section_count,
                                        station_count, check_count, x_lo, x_hi, path)
     report.update({"section_count": int(section_count), "station_count": int(station_count),
                    "section_radii": [float(radii[0]), float(radii[-1])]})
     return StepBlisk(sections, hub, shroud, blade_count, report, check)
 
-
-def _angular_extent(rays, x_lo, x_hi, n=360):
-    """'whole' or 'sector', the sector angle [rad], and angles at which to sample meridional rays.
-
-    Written by hand: rays at ``n`` angles at the axial middle; the sector's two ends refined by bisection.
-    """
-    x = 0.5 * (x_lo + x_hi)
-    th = np.linspace(-np.pi, np.pi, n, endpoint=False)
-    hit = np.array([bool(rays.intervals(x, t)) for t in th])
-    if hit.all():
-        return "whole", 2 * np.pi, th
-    if not hit.any():
-        raise GeometryError("STEP import: no material on rays from the axis at the part's axial middle")
-    # the sector: one run of hits around the circle
-    starts = np.nonzero(hit & ~np.roll(hit, 1))[0]
-    if len(starts) != 1:
-        raise GeometryError(f"STEP import: the part covers {len(starts)} separate angular ranges around its axis; "
-                            f"expected a whole blisk or one sector")
-    i0 = int(starts[0])
-    i1 = int(np.nonzero(hit & ~np.roll(hit, -1))[0][0])
-
-    def edge(inside, outside):
-        for _ in range(40):
-            mid = 0.5 * (inside + outside)
-            if rays.intervals(x, mid):
-                inside = mid
-            else:
-                outside = mid
-        return inside
-
-    step = 2 * np.pi / n
-    a = edge(th[i0], th[i0] - step)
-    b_in = th[i1] if th[i1] >= th[i0] else th[i1] + 2 * np.pi
-    b = edge(b_in, b_in + step)
-    sector = b - a
-    return "sector", float(sector), np.linspace(a, b, 40)[1:-1]
-
-
-def _walls(rays, x_lo, x_hi, angles, n_x=49):
-    """Hub and shroud profiles from meridional rays (hand-written, see the module's notes)."""
-    take = angles if len(angles) <= 24 else angles[np.linspace(0, len(angles) - 1, 24).astype(int)]
-    span = x_hi - x_lo
-    xs = np.linspace(x_lo + 1e-4 * span, x_hi - 1e-4 * span, n_x)
-    hub_pts, shroud_pts = [], []
-    for x in xs:
-        tops, bottoms = [], []
-        for t in take:
-            iv = rays.intervals(x, t)
-            if iv and len(iv) >= 2:
-                tops.append(iv[0][1])
-                bottoms.append(iv[-1][0])
-        if tops:
-            hub_pts.append((x, min(tops)))
-            shroud_pts.append((x, max(bottoms)))
-    if len(hub_pts) < 2:
-        raise GeometryError("STEP import: no meridional section with a hub and a shroud (the rays from the axis "
-                            "do not cross two separate walls): not a shrouded blisk")
-    hub = RevolutionProfile(np.array(hub_pts), "hub_profile (from STEP)")
-    shroud = RevolutionProfile(np.array(shroud_pts), "shroud_profile (from STEP)")
-    return hub, shroud, {
-        "hub_x_range": [float(hub_pts[0][0]), float(hub_pts[-1][0])],
-        "hub_r_range": [float(min(p[1] for p in hub_pts)), float(max(p[1] for p in hub_pts))],
-        "shroud_r_range": [float(min(p[1] for p in shroud_pts)), float(max(p[1] for p in shroud_pts))],
-        "profile_points": len(hub_pts)}
-
-
-def _whole_count(loops, path, r_mid):
-    """The blade count of a whole blisk from its mid-span loops, which must be equally spaced."""
-    n = len(loops)
-    if n < 2:
-        raise GeometryError(f"{path}: a whole turn with {n} blade at mid span: no blade pitch")
-    th = np.sort(np.array([lp["theta"] for lp in loops]) % (2 * np.pi))
-    gaps = np.diff(np.r_[th, th[0] + 2 * np.pi])
-    pitch = 2 * np.pi / n
-    worst = float(np.max(np.abs(gaps - pitch)))
-    widths = np.array([lp["theta_span"] for lp in loops])
-    if worst > SPACING_TOL * pitch or np.ptp(widths) > SPACING_TOL * pitch:
-        raise GeometryError(
-            f"{path}: no rotational symmetry: the {n} blades met at mid span (r = {r_mid:.3f} mm) are not copies "
-            f"equally spaced by 360/{n} deg (spacing off by up to {np.degrees(worst):.4g} deg, angular widths "
-            f"differ by {np.degrees(np.ptp(widths)):.4g} deg; tolerance {SPACING_TOL:.0%} of the pitch)")
-    return n
 
 
 def _fillet_zones(solid, hub, shroud):
@@ -658,184 +561,3 @@ def _fillet_zones(solid, hub, shroud):
             blend += 1
     return {"root_fillet_depth": root, "tip_fillet_depth": tip, "fillet_faces": blend}
 
-
-def _mid_span_blades(rays, r_mid, x_lo, x_hi, n_x=41):
-    """The blades met by the mid-span cylinder: [{theta, x_min, x_max, theta_span}], one per blade.
-
-    Written by hand: the cylinder's section sampled by circles at ``n_x`` axial stations; the blades are the
-    stretches of material on the circle at the station where the most are met (the middle such station), and
-    each blade's axial extent is where circles meet it near its angle.
-    """
-    xs = np.linspace(x_lo, x_hi, n_x + 2)[1:-1]
-    found = [rays.circle(x, r_mid, -np.pi) or [] for x in xs]
-    counts = np.array([len(f) for f in found])
-    if counts.max() == 0:
-        return []
-    best = np.nonzero(counts == counts.max())[0]
-    i = int(best[len(best) // 2])
-    half_pitch = np.pi / counts.max()
-    blades = []
-    for a, b in found[i]:
-        centre = 0.5 * (a + b)
-        ends = []
-        for step in (-1, 1):                   # follow the blade station by station (it sweeps round the axis)
-            ref, j, last = centre, i, i
-            while 0 <= j + step < len(xs):
-                near = [0.5 * (c + d) for c, d in found[j + step] if abs(_wrap(0.5 * (c + d) - ref)) < half_pitch]
-                if not near:
-                    break
-                j += step
-                ref = ref + _wrap(min(near, key=lambda m: abs(_wrap(m - ref))) - ref)
-                last = j
-            ends.append(last)
-        blades.append({"theta": float(_wrap(centre)), "theta_span": float(b - a), "x": float(xs[i]),
-                       "x_min": float(xs[ends[0]]), "x_max": float(xs[ends[1]])})
-    return blades
-
-
-def _sections(rays, hub, shroud, blade0, pitch, zones, n_sec, n_st, n_check, x_lo, x_hi, path):
-    """BladeSections of blade 0 on cylinders clear of the walls and the fillets, and the check sections.
-
-    Written by hand: on each cylinder the leading and trailing edge are found by bisection on "the circle at
-    (x, r) meets blade 0", the stations cosine-clustered between them, and each station's two angles are where
-    its circle enters and leaves blade 0.
-    """
-    if isinstance(n_sec, bool) or not isinstance(n_sec, int) or n_sec < 4 or n_sec > 1000:
-        raise GeometryError(f"step.section_count: must be an integer in 4 .. 1000, got {n_sec!r}")
-    if isinstance(n_st, bool) or not isinstance(n_st, int) or n_st < 8 or n_st > 1000:
-        raise GeometryError(f"step.station_count: must be an integer in 8 .. 1000, got {n_st!r}")
-    lo_x = max(hub.x_range[0], shroud.x_range[0])
-    hi_x = min(hub.x_range[1], shroud.x_range[1])
-    xs = np.linspace(lo_x, hi_x, 400)
-    height_min = float(np.min(shroud.radius_at(xs) - hub.radius_at(xs)))
-    clear = WALL_CLEARANCE * height_min
-    chord = blade0["x_max"] - blade0["x_min"]
-    theta0 = blade0["theta"]
-
-    def wall_limits(a, b):
-        sel = (xs >= a) & (xs <= b)
-        if not sel.any():
-            sel = np.ones_like(xs, dtype=bool)
-        return (float(hub.radius_at(xs[sel]).max()) + zones["root_fillet_depth"] + clear,
-                float(shroud.radius_at(xs[sel]).min()) - zones["tip_fillet_depth"] - clear)
-
-    reach = min(np.pi, 0.75 * pitch)
-    x_ref = blade0["x"]
-
-    def blade_at(x, r, ref):
-        """(theta_minus, theta_plus) of blade 0 on the circle (x, r), or None where it is not met: the stretch
-        of material nearest ``ref`` (blade 0's angle at a neighbouring station) on the arc of +-3/4 pitch
-        about it (a stretch cut by the arc's ends is a neighbour's or a wall's)."""
-        lo = ref - reach
-        found = rays.circle(x, r, lo, 2 * reach)
-        if not found:
-            return None
-        found = [ab for ab in found if ab[0] > lo + 1e-12 and ab[1] < lo + 2 * reach - 1e-12]
-        if not found:
-            return None
-        return min(found, key=lambda ab: abs(0.5 * (ab[0] + ab[1]) - ref))
-
-    def scan(r):
-        """Blade 0's angle at the stations of an axial grid where the circle meets it: followed station by
-        station from ``x_ref`` both ways (a blade sweeps round the axis along its chord by about a pitch)."""
-        grid = np.linspace(x_lo, x_hi, 81)
-        j0 = int(np.argmin(np.abs(grid - x_ref)))
-        ab = blade_at(grid[j0], r, theta0)
-        if ab is None:
-            raise GeometryError(f"{path}: blade 0 does not meet the cylinder r = {r:.4f} mm at x = {grid[j0]:.3f} mm")
-        centres = {j0: 0.5 * (ab[0] + ab[1])}
-        for step in (1, -1):
-            j, ref = j0 + step, centres[j0]
-            while 0 <= j < len(grid):
-                ab = blade_at(grid[j], r, ref)
-                if ab is None:
-                    break
-                ref = centres[j] = 0.5 * (ab[0] + ab[1])
-                j += step
-        return grid, centres
-
-    def edges(r):
-        """Leading and trailing edge x of blade 0 on the cylinder r (bisection), and its angle along x."""
-        grid, centres = scan(r)
-        i0, i1 = min(centres), max(centres)
-
-        def bisect(inside, outside, ref):
-            for _ in range(30):
-                mid = 0.5 * (inside + outside)
-                if blade_at(mid, r, ref) is not None:
-                    inside = mid
-                else:
-                    outside = mid
-            return inside
-
-        le = bisect(grid[i0], grid[i0 - 1], centres[i0]) if i0 > 0 else grid[0]
-        te = bisect(grid[i1], grid[i1 + 1], centres[i1]) if i1 < len(grid) - 1 else grid[-1]
-        keys = sorted(centres)
-        return le, te, grid[keys], np.array([centres[k] for k in keys])
-
-    def section(r, edge_margin=1e-4):
-        le, te, along_x, along_theta = edges(r)
-        u = 0.5 - 0.5 * np.cos(np.linspace(0.0, np.pi, n_st))
-        x = le + (te - le) * (edge_margin + (1 - 2 * edge_margin) * u)
-        tm, tp = np.empty(n_st), np.empty(n_st)
-        mid = 0.5 * (le + te)
-        for c, xc in enumerate(x):
-            ab = blade_at(xc, r, np.interp(xc, along_x, along_theta))
-            for k in range(1, 30):              # a knife edge's two crossings can merge: step in a little
-                if ab is not None:
-                    break
-                x[c] = xc = xc + (mid - xc) * 2e-4 * k
-                ab = blade_at(xc, r, np.interp(xc, along_x, along_theta))
-            if ab is None:
-                raise GeometryError(f"{path}: the circle at x = {xc:.4f} mm, r = {r:.4f} mm misses blade 0 "
-                                    f"between its edges")
-            tm[c], tp[c] = ab
-        return x, tm, tp
-
-    r_lo, r_hi = wall_limits(blade0["x_min"] - 0.2 * chord, blade0["x_max"] + 0.2 * chord)
-    if r_hi <= r_lo:
-        raise GeometryError(f"{path}: no span clear of the walls and fillets to cut blade sections in "
-                            f"(r {r_lo:.3f} .. {r_hi:.3f} mm)")
-    # the limits again from the blade's edges at the two outermost cylinders, a little beyond them
-    e_lo, e_hi = edges(r_lo)[:2], edges(r_hi)[:2]
-    span = max(e_lo[1], e_hi[1]) - min(e_lo[0], e_hi[0])
-    r_lo, r_hi = wall_limits(min(e_lo[0], e_hi[0]) - 0.02 * span, max(e_lo[1], e_hi[1]) + 0.02 * span)
-    radii = np.linspace(r_lo, r_hi, n_sec)
-    X, TM, TP = [], [], []
-    for radius in radii:
-        x, tm, tp = section(radius)
-        X.append(x)
-        TM.append(tm)
-        TP.append(tp)
-    sections = BladeSections(np.array(X), np.repeat(radii[:, None], n_st, axis=1), np.array(TM), np.array(TP))
-    check = {"x": [], "r": [], "theta_minus": [], "theta_plus": []}
-    picks = np.unique(np.linspace(0, n_sec - 2, n_check).round().astype(int)) if n_check else []
-    for j in picks:
-        radius = 0.5 * (radii[j] + radii[j + 1])
-        x, tm, tp = section(radius)
-        for key, val in (("x", x), ("r", np.full(n_st, radius)), ("theta_minus", tm), ("theta_plus", tp)):
-            check[key].append(val)
-    return sections, check, radii
-
-
-def fit_deviation(blisk, step_blisk):
-    """Largest distance [mm] along the circle between the STEP's blade and the reconstructed blade faces, at
-    the check sections (half way between the section radii), and the number of points compared.
-
-    Returns
-    -------
-    (float, int) or (None, 0) without check sections
-    """
-    c = step_blisk.check
-    if not c or not c.get("x"):
-        return None, 0
-    x = np.concatenate(c["x"])
-    r = np.concatenate(c["r"])
-    th_s, ok_s = blisk.suction_face.theta_at(x, r)
-    th_p, ok_p = blisk.pressure_face.theta_at(x, r)
-    ok = ok_s & ok_p
-    if not ok.any():
-        return None, 0
-    dev = np.maximum(np.abs(th_s - np.concatenate(c["theta_plus"])),
-                     np.abs(th_p - np.concatenate(c["theta_minus"]))) * r
-    return float(dev[ok].max()), int(ok.sum())
