@@ -31,6 +31,30 @@ SPACING_TOL = 0.01
 WALL_CLEARANCE = 0.01
 
 
+def stretches(crossings, lo, hi, merge_tol):
+    """[(in, out), ...] of material on a line's stretch ``lo .. hi`` from its crossings of the solid's boundary,
+    or None where they do not alternate in, out (a broken or self-intersecting boundary).
+
+    ``crossings``: [(parameter, entering)], ``entering`` from the boundary's orientation (its outward normal
+    against the line's direction), so no point needs classifying; a crossing found twice (on an edge shared by
+    two faces, or at the end of one of the pieces a line was cut into) within ``merge_tol`` counts once. A line
+    that starts or ends inside material gets ``lo``/``hi`` as its first entry or last exit.
+    """
+    merged = []
+    for v, entering in sorted(crossings):
+        if not merged or v - merged[-1][0] > merge_tol:
+            merged.append((float(v), bool(entering)))
+    if not merged:
+        return []
+    if not merged[0][1]:
+        merged.insert(0, (float(lo), True))
+    if merged[-1][1]:
+        merged.append((float(hi), False))
+    if any(merged[i][1] == merged[i + 1][1] for i in range(len(merged) - 1)):
+        return None
+    return [(merged[i][0], merged[i + 1][0]) for i in range(0, len(merged), 2)]
+
+
 def merge_wrap(stretches, start, length):
     """Stretches of a whole turn with the one running through its start joined: (a, start + 2 pi) and
     (start, b) become (a, b + 2 pi)."""

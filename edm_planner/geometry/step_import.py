@@ -47,8 +47,8 @@ from ..errors import GeometryError, GeometryFileError
 from .profiles import RevolutionProfile
 from .readers import unit_scale
 from .sections import BladeSections
-from .solid_sections import (angular_extent, blade_sections, merge_wrap, mid_span_blades, walls, whole_count,
-                             wrap_angle)
+from .solid_sections import (angular_extent, blade_sections, merge_wrap, mid_span_blades, stretches, walls,
+                             whole_count, wrap_angle)
 
 _log = logging.getLogger(__name__)
 
@@ -428,21 +428,8 @@ class _Rays:
                 t = self.hits.Transition(i)
                 if t in (IntCurveSurface_In, IntCurveSurface_Out):
                     w.append((self.hits.WParameter(i), t == IntCurveSurface_In))
-        w.sort()
-        merged = []
-        for v, entering in w:                         # a crossing on an arc's end or a face's edge comes twice
-            if not merged or v - merged[-1][0] > 1e-9:
-                merged.append((v, entering))
-        if not merged:
-            return []
-        # the transitions (the faces' orientation) tell in from out, so no point needs classifying
-        if not merged[0][1]:
-            merged.insert(0, (float(start), True))
-        if merged[-1][1]:
-            merged.append((float(start + length), False))
-        if any(merged[i][1] == merged[i + 1][1] for i in range(len(merged) - 1)):
-            return None
-        return merge_wrap([(merged[i][0], merged[i + 1][0]) for i in range(0, len(merged), 2)], start, length)
+        found = stretches(w, start, start + length, 1e-9)
+        return None if found is None else merge_wrap(found, start, length)
 
 
 # -- the import ----------------------------------------------------------------------------------------
