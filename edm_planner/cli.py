@@ -55,13 +55,30 @@ def _parser():
     p = argparse.ArgumentParser(prog="edm-plan", description="Five-axis EDM electrode path planning for "
                                                              "shrouded blisks (units mm, rad, s).")
     sub = p.add_subparsers(dest="command", required=True)
-    q = sub.add_parser("plan", help="plan one channel and write the plan export directory",
+    q = sub.add_parser("plan", help="plan one channel (or the whole blisk) and write the plan export directory",
                        description="Plan one channel: backward exit search, C2 spline, continuous certification; "
-                                   "writes plan.json, electrode.stl, workpiece.stl and axes.csv to --out.")
+                                   "writes plan.json, electrode.stl, workpiece.stl and axes.csv to --out. Without "
+                                   "an electrode design (the file's electrode section or an override below) the "
+                                   "channel's electrode set is designed instead. With --all-channels the whole "
+                                   "blisk: every group of channels whose walls agree (a blisk as measured; one "
+                                   "group when nominal) planned on its representative channel's own walls as "
+                                   "one task (local worker processes, or Ray tasks with --ray-address), each "
+                                   "kept in the plan store as it finishes (a rerun plans only what is missing); "
+                                   "--out gets one export per group (channel_K/) and blisk.json (groups, "
+                                   "members, plan ids, clearances, status), from which `edm-plan export "
+                                   "--all-channels DIR` writes the whole blisk's NC program. A fixed design plans "
+                                   "each of its electrodes (or --electrode) with its machining cycle; a group "
+                                   "that fails is named, the others are kept, and the exit status is its error.")
     q.add_argument("--geometry", required=True, metavar="FILE.yaml", help="blisk geometry file")
-    q.add_argument("--channel", required=True, type=int, metavar="K", help="channel index 0 .. blade_count-1")
+    q.add_argument("--channel", type=int, metavar="K", help="channel index 0 .. blade_count-1 (or --all-channels)")
+    q.add_argument("--all-channels", action="store_true",
+                   help="the whole blisk: every channel group as a task (see above)")
+    q.add_argument("--workers", type=int, metavar="N",
+                   help="--all-channels: worker processes (or a local Ray's CPUs) for the groups' tasks "
+                        "(default: the CPU count, at most one per group)")
     q.add_argument("--out", required=True, metavar="DIR", help="export directory (created)")
-    q.add_argument("--electrode", default="", metavar="ID", help="electrode id (default: the first)")
+    q.add_argument("--electrode", default="", metavar="ID",
+                   help="electrode id (default: the first; with --all-channels every electrode of the design)")
     q.add_argument("--method", choices=METHODS, default=d.method)
     q.add_argument("--reference", choices=REFERENCES, default=d.reference, help="reference direction")
     q.add_argument("--axes", type=int, choices=(4, 5, 6), default=d.axes, help="machine axes")
@@ -94,7 +111,8 @@ def _parser():
     q.add_argument("--ray-address", default="", metavar="HOST:PORT",
                    help="design an electrode set on this Ray cluster ('auto': the one this machine belongs to; "
                         "started with `ray start --head`; 'local': a local Ray started for the design): its "
-                        "pieces and proof shares run as Ray tasks (default: local worker processes)")
+                        "pieces and proof shares run as Ray tasks (default: local worker processes); with "
+                        "--all-channels each channel group is one Ray task there")
     _store_argument(q)
     q.add_argument("--replan", action="store_true", help="plan anew even if the store has the plan of this request")
     _progress_argument(q)
@@ -297,16 +315,24 @@ def _plan(args, out, err):
             seed=args.seed, time_budget=args.time_budget), size_electrode=args.size_electrode)
     except ValueError as exc:
         raise EdmError(ErrorCode.INVALID_REQUEST, str(exc)) from None
+    if (args.channel is None) == (not args.all_channels):
+        raise EdmError(ErrorCode.INVALID_REQUEST, "plan: give --channel K or --all-channels (one of them)")
+    if args.all_channels and args.size_electrode:
+        raise EdmError(ErrorCode.INVALID_REQUEST, "--size-electrode plans one channel: not with --all-channels")
+    if args.workers is not None and args.workers < 1:
+        raise EdmError(ErrorCode.INVALID_REQUEST, f"--workers must be at least 1, got {args.workers}")
     progress = _Progress(err, args.progress)
     progress("load", 0.0, 0, 0.0, args.geometry)
     geometry = load_geometry(args.geometry)
-    if not 0 <= args.channel < geometry.blisk.blade_count:
+    if not args.all_channels and not 0 <= args.channel < geometry.blisk.blade_count:
         raise EdmError(ErrorCode.INVALID_REQUEST,
                        f"--channel must be in 0 .. {geometry.blisk.blade_count - 1}, got {args.channel}")
     try:
         os.makedirs(args.cache_dir, exist_ok=True)
     except OSError as exc:
         raise EdmError(ErrorCode.FILE_ERROR, f"--cache-dir {args.cache_dir}: {exc}") from None
+    if args.all_channels:
+        return _plan_blisk(args, geometry, options, progress, out, err)
     design = _design(args, geometry.design)
     store = open_store(args.store)
     if design is None and not args.electrode and not geometry.design_given and not args.size_electrode:
@@ -429,6 +455,198 @@ def _plan_set(args, geometry, options, store, progress, out, err):
     return 0
 
 
+#: the whole-blisk plan's summary in its --out directory (`edm-plan plan --all-channels`)
+BLISK_FILE, BLISK_FORMAT = "blisk.json", "edm_planner.blisk_plan/1"
+
+
+def _plan_blisk(args, geometry, options, progress, out, err):
+    """--all-channels: every channel group planned as a task, kept as it finishes; blisk.json and a program."""
+    # heavy, this command's only (see the note at the top)
+    from .machining.blisk_plan import STORED, BliskRequest, GroupPlan, design_electrode_ids, plan_blisk
+    from .machining.cycle import CycleOptions
+    from .machining.electrode_set import SetDesigner, SetOptions, set_id_for
+    from .records.certificate import NotCertifiedError
+    from .records.set_files import write_set, write_stored_set
+
+    gid, n = geometry.geometry_id, geometry.blisk.blade_count
+    design = _design(args, geometry.design)
+    fixed = not (design is None and not args.electrode and not geometry.design_given)
+    store = open_store(args.store)
+    root = pathlib.Path(args.out)
+    width = len(str(n - 1))
+    request = BliskRequest(options, fixed_design=fixed, design=design, cache_dir=args.cache_dir)
+    set_options = None
+    if fixed:
+        request = BliskRequest(options, True, design, design_electrode_ids(geometry, design, args.electrode),
+                               CycleOptions(tolerance=SetOptions().tolerance), args.cache_dir)
+    else:
+        from .cnc.config import default_machine_path, load_machine
+        from .process.set_process import add_process
+        from .process.volume import load_stock_mesh
+
+        process = load_machine(args.machine or default_machine_path()).process
+        if args.single_regime:
+            process = replace(process, rough_and_finish=False)
+        stock = load_stock_mesh(args.stock_mesh) if args.stock_mesh else None
+        set_options = SetOptions(time_budget=max(args.time_budget, 60.0) * 15)
+        request = BliskRequest(options, False, None, (), CycleOptions(tolerance=set_options.tolerance), args.cache_dir,
+                               set_options, process, add_process, args.volume_resolution, stock)
+
+    def set_id_of(rep):
+        return set_id_for(gid, rep, SetDesigner.machining_plan_options(options, geometry.design, set_options),
+                          set_options, request.cycle_options, request.process, request.process_resolution,
+                          request.stock_mesh[1] if request.stock_mesh else "")[0]
+
+    def plan_key(rep, electrode_id):
+        return request_key(gid, rep, electrode_id, options, design)      # edm-plan plan --channel's own key
+
+    def stored(group):
+        """The group's plans (with certified cycles) or set from the store; None where any is missing."""
+        rep, members, devs = group
+        if store is None or args.replan:
+            return None
+        try:
+            if fixed:
+                plans = []
+                for eid in request.electrode_ids:
+                    rec = store.find(plan_key(rep, eid))
+                    plan = stored_to_plan(rec, str(store.path)) if rec is not None else None
+                    if plan is None or plan.cycle is None or not plan.cycle.certified:
+                        return None         # missing, or kept by `plan --channel` without its cycle
+                    plans.append(plan)
+                return GroupPlan(rep, members, devs, plans=plans, labels=list(request.electrode_ids),
+                                 message=f"from the plan store {store.path}")
+            seq = store.get_sequence(set_id_of(rep))
+            if seq is None:
+                return None
+            plans = [stored_to_plan(store.get(pid), str(store.path)) for pid in seq.plan_ids]
+            return GroupPlan(rep, members, devs, plans=plans, labels=list(seq.meta.get("labels") or []),
+                             message=f"set {seq.sequence_id} from the plan store {store.path}")
+        except (PlanStoreError, NotCertifiedError, TypeError) as exc:
+            print(f"warning: group of channel {rep}: the plan store's copy is not used ({exc}); planning it anew",
+                  file=err)
+            return None
+
+    exports = {}
+
+    def keep(outcome):
+        """Each group as it finishes: its export (a failed set's too, for its report), then the plan store."""
+        rep = outcome.representative
+        done[rep] = outcome
+        where = root / f"channel_{rep:0{width}d}"
+        blisk = geometry.for_channel(rep).blisk
+        found = outcome.electrode_set
+        try:
+            if found is not None:
+                path = write_set(found, where, blisk, None, channels=outcome.members)
+                exports[rep] = [str((path.parent / e["export"]).relative_to(root))
+                                for e in json.loads(path.read_text()).get("electrodes", [])]
+            elif outcome.ok and not fixed:
+                seq = store.get_sequence(set_id_of(rep))
+                write_stored_set(outcome.plans, outcome.labels, seq.meta, where, blisk)
+                exports[rep] = [str((where / label).relative_to(root)) for label in outcome.labels]
+            elif outcome.ok:
+                exports[rep] = [str(write_plan(p, where / label, blisk).parent.relative_to(root))
+                                for p, label in zip(outcome.plans, outcome.labels)]
+        finally:
+            _write_blisk_json(root, geometry, args.geometry, exports, done)
+        if store is None or outcome.status != "planned":
+            return
+        try:                        # after the files: a store that cannot take them costs no plan
+            if fixed:
+                for p, eid in zip(outcome.plans, request.electrode_ids):
+                    store.put(plan_to_stored(p), plan_key(rep, eid))
+            else:
+                for p in outcome.plans:
+                    store.put(plan_to_stored(p))
+                meta = dict(found.to_dict(), labels=list(outcome.labels), channels=list(outcome.members))
+                store.put_sequence(found.set_id, "electrode_set", [(p.plan_id, p.channel) for p in outcome.plans],
+                                   json_safe(meta))
+        except PlanStoreError as exc:
+            print(f"warning: {outcome.name}: written to {where} but not kept in the plan store: {exc.message}",
+                  file=err)
+
+    done = {}
+    t0 = time.perf_counter()
+
+    def report(outcome, count, total, message=""):
+        if outcome is None:
+            line = message
+        else:
+            where = ("from the plan store" if outcome.status == STORED else
+                     f"on node {outcome.node[:12] or '?'} ({outcome.worker or '?'}) in {outcome.elapsed_s:.1f} s")
+            if outcome.ok:
+                low, exact = outcome.clearance("clearance_lower_bound"), outcome.clearance("clearance_exact")
+                line = (f"{outcome.name}: {outcome.status} {where}; plans {', '.join(p.plan_id for p in outcome.plans)}"
+                        f"; clearance lower bound {min(low.values()):.4f} mm, exact minimum "
+                        f"{min(exact.values()):.4f} mm")
+            else:
+                line = f"{outcome.name}: FAILED {where}: {outcome.error_code.name}: {_one_line(outcome.message)}"
+            line = f"group {count}/{total} " + line
+        if args.progress != "none":
+            print(f"[{time.perf_counter() - t0:6.1f} s] {line}", file=err, flush=True)
+
+    result = plan_blisk(geometry, request, workers=args.workers, ray_address=args.ray_address, stored=stored,
+                        keep=keep, report=report)
+    progress.close()
+    if result.steps is not None and store is not None:
+        try:
+            store.put_sequence(result.program_id, "blisk_program", result.steps,
+                               {"blade_count": n, "groups": [g.to_dict() for g in result.groups]})
+        except PlanStoreError as exc:
+            print(f"warning: the whole-blisk program is not kept in the plan store: {exc.message}", file=err)
+    _write_blisk_json(root, geometry, args.geometry, exports, done, result)
+    lines = [f"whole blisk {gid[:12]}: {len(result.groups)} channel group(s) of {n} channels, "
+             f"{'fixed design' if fixed else 'electrode set per group'}"
+             + (f", planned on {result.executor}" if result.executor else "") + f", {result.elapsed_s:.1f} s"]
+    lines.append("  group                                          status   plans               lower bound  exact min [mm]")
+    for g in result.groups:
+        low, exact = g.clearance("clearance_lower_bound"), g.clearance("clearance_exact")
+        lines.append(f"  {g.name[:46]:<46} {g.status:<8} {','.join(p.plan_id[:8] for p in g.plans)[:19]:<19} "
+                     + (f"{min(low.values()):11.4f}  {min(exact.values()):9.4f}" if g.ok else g.error_code.name))
+    lines.append(f"written to {root} ({BLISK_FILE}, one export per group)")
+    if result.failed:
+        print("\n".join(lines), file=out)
+        names = "; ".join(f"{g.name}: {g.error_code.name}: {_one_line(g.message)}" for g in result.failed)
+        raise EdmError(result.failed[0].error_code,
+                       f"{len(result.failed)} of {len(result.groups)} channel group(s) failed ({names}); the others "
+                       f"are kept in {root}" + (f" and the plan store {store.path}" if store is not None else "")
+                       + "; no whole-blisk program is written with a channel missing (a rerun plans only the "
+                         "failed groups)")
+    lines.append(f"whole-blisk program {result.program_id}: {len(result.steps)} steps (every channel once per "
+                 f"electrode of its group); `edm-plan export --all-channels {root}` writes its NC program")
+    print("\n".join(lines), file=out)
+    return 0
+
+
+def _write_blisk_json(root, geometry, source, exports, done, result=None):
+    """blisk.json: the groups finished so far (``done``), and with ``result`` the whole (complete or not)."""
+    groups = []
+    for rep, members, devs in geometry.channel_groups() if result is None else (
+            (g.representative, g.members, g.deviations) for g in result.groups):
+        g = done.get(rep) if result is None else next(x for x in result.groups if x.representative == rep)
+        entry = g.to_dict() if g is not None else {"representative": rep, "members": members,
+                                                    "wall_deviation_mm": devs, "status": "pending"}
+        entry["exports"] = exports.get(rep, []) if g is not None and g.ok else []
+        groups.append(entry)
+    doc = {"format": BLISK_FORMAT, "units": {"length": "mm", "angle": "rad", "time": "s"},
+           "geometry_id": geometry.geometry_id, "geometry_file": str(source),
+           "blade_count": geometry.blisk.blade_count, "complete": bool(result is not None and result.steps),
+           "program_id": result.program_id if result is not None else "",
+           "executor": result.executor if result is not None else "",
+           "steps": None if result is None or result.steps is None else [[p, int(k)] for p, k in result.steps],
+           "groups": groups}
+    path = pathlib.Path(root) / BLISK_FILE
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(json_safe(doc), indent=1, allow_nan=False))
+        os.replace(tmp, path)               # a reader never sees half a file
+    except OSError as exc:
+        raise EdmError(ErrorCode.FILE_ERROR, f"cannot write {path}: {exc}") from None
+    return path
+
+
 def _exported_plan(path):
     """(PlanCycle with the export's cycle, blade count) of a plan export directory."""
     # heavy, this command's only (see the note at the top)
@@ -464,6 +682,8 @@ def _export_job(source, store_dir, all_channels):
                     steps=blisk_program_steps(ids, blade_count), pitch=2 * math.pi / blade_count)
 
     path = pathlib.Path(source)
+    if path.is_dir() and (path / BLISK_FILE).is_file():
+        return _blisk_job(path)
     if path.is_dir() and (path / "set.json").is_file():
         try:
             doc = json.loads((path / "set.json").read_text())
@@ -520,6 +740,48 @@ def _export_job(source, store_dir, all_channels):
         blade_count = other.meta.get("blade_count") if other is not None else None
     job = whole(seq.kind, seq.sequence_id, plans, seq.steps, blade_count, program)
     return dict(job, geometry_id=seq.geometry_id)
+
+
+def _blisk_job(path):
+    """The whole-blisk program of an `edm-plan plan --all-channels` directory: each group's plans from its exports."""
+    # heavy, this command's only (see the note at the top)
+    from .machining.program import channel_program_steps
+
+    where = path / BLISK_FILE
+    try:
+        doc = json.loads(where.read_text())
+        if doc.get("format") != BLISK_FORMAT:
+            raise ValueError(f"format {doc.get('format')!r}, not {BLISK_FORMAT}")
+        blade_count, groups = int(doc["blade_count"]), doc["groups"]
+        failed = [g for g in groups if g["status"] not in ("planned", "stored")]
+        entries = {int(g["representative"]): list(zip(g["plan_ids"], g["exports"])) for g in groups
+                   if g not in failed}
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise EdmError(ErrorCode.FILE_ERROR, f"{where}: not a whole-blisk plan ({exc!r})") from None
+    if failed or not doc.get("complete"):
+        names = "; ".join(f"channels {g['members']} ({g['status']}: {g.get('message', '')[:120]})" for g in failed)
+        why = names or "its run did not finish"
+        raise EdmError(ErrorCode.INFEASIBLE, f"{where}: the whole-blisk plan is not complete ({why}): no program is "
+                                             f"written with a channel missing; run `edm-plan plan --all-channels` "
+                                             f"again (it plans only what is missing)")
+    plans, geometry_ids = {}, set()
+    for rep, pairs in entries.items():
+        for plan_id, export in pairs:
+            plan, count = _exported_plan(path / export)
+            if plan.plan_id != plan_id or count != blade_count or plan.channel != rep:
+                raise EdmError(ErrorCode.FILE_ERROR, f"{path / export}: holds plan {plan.plan_id} of channel "
+                                                     f"{plan.channel} ({count} blades), {BLISK_FILE} names {plan_id} "
+                                                     f"of channel {rep} ({blade_count} blades)")
+            plans[plan_id], geometry_ids = plan, geometry_ids | {plan.geometry_id}
+    if geometry_ids != {doc["geometry_id"]}:
+        raise EdmError(ErrorCode.FILE_ERROR, f"{path}: plans of geometries {sorted(geometry_ids)}, {BLISK_FILE} "
+                                             f"names {doc['geometry_id']}")
+    steps = channel_program_steps([(int(g["representative"]), g["members"]) for g in groups],
+                                  {rep: [p for p, _ in pairs] for rep, pairs in entries.items()}, blade_count)
+    if [list(s) for s in steps] != doc["steps"]:
+        raise EdmError(ErrorCode.FILE_ERROR, f"{where}: its steps are not those of its groups' plans")
+    return dict(name=doc["program_id"], kind="blisk_program", plans=plans, steps=steps,
+                pitch=2 * math.pi / blade_count, geometry_id=doc["geometry_id"])
 
 
 def _export(args, out):
