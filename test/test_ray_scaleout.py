@@ -11,11 +11,8 @@ started once for the module and shut down at its end. Every wait has a deadline.
 """
 
 import os
-import pathlib
-import shutil
 import signal
 import sys
-import tempfile
 import time
 from dataclasses import replace
 
@@ -30,6 +27,7 @@ from edm_planner.machining.wall_samples import wall_samples
 from edm_planner.cnc.kinematics import axis_poses
 
 from conftest import CONFIG
+from ray_cluster import task_processes, two_node_cluster
 
 #: seconds any one wait of this file may take before it fails
 DEADLINE = 240.0
@@ -38,32 +36,8 @@ DEADLINE = 240.0
 @pytest.fixture(scope="module")
 def cluster():
     """A Ray cluster of two nodes of one CPU each on loopback, this process connected; (cluster, nodes)."""
-    temp = tempfile.mkdtemp(prefix="edm_ray_test_")
-    previous = executors._loopback_environment(temp)
-    imported = "ray" in sys.modules
-    import ray
-    from ray.cluster_utils import Cluster
-
-    if imported:
-        executors._reread_ray_configuration()
-    c = None
-    try:
-        c = Cluster(initialize_head=True, connect=False,
-                    head_node_args={"num_cpus": 1, "include_dashboard": False, "temp_dir": temp,
-                                    "object_store_memory": 200 * 1024 * 1024})
-        worker_node = c.add_node(num_cpus=1, object_store_memory=200 * 1024 * 1024)
-        c.wait_for_nodes(timeout=60)
-        ray.init(address=c.address, log_to_driver=False)
-        nodes = [n["NodeID"] for n in ray.nodes() if n["Alive"]]
-        assert len(nodes) == 2, ray.nodes()
-        assert all(n["NodeManagerAddress"] == "127.0.0.1" for n in ray.nodes())
-        yield c, [c.head_node, worker_node]
-    finally:
-        ray.shutdown()
-        if c is not None:
-            c.shutdown()
-        executors._restore(previous)
-        shutil.rmtree(temp, ignore_errors=True)
+    with two_node_cluster() as made:
+        yield made
 
 
 @pytest.fixture(scope="module")
@@ -174,23 +148,6 @@ def test_the_designer_sizes_a_candidates_pieces_on_the_nodes_and_reports_each_as
     assert fractions == sorted(fractions) and len(fractions) > len(finished)
 
 
-def _task_processes(nodes):
-    """(pid) of the Ray worker processes of ``nodes`` running a task of the set designer now."""
-    raylets = {p.process.pid for n in nodes for p in n.all_processes.get("raylet", [])}
-    out = []
-    for proc in pathlib.Path("/proc").iterdir():
-        if not proc.name.isdigit():
-            continue
-        try:
-            cmdline = (proc / "cmdline").read_bytes()
-            ppid = int((proc / "stat").read_text().rsplit(")", 1)[1].split()[1])
-        except (OSError, ValueError, IndexError):
-            continue
-        if ppid in raylets and cmdline.startswith(b"ray::_edm_task"):
-            out.append(int(proc.name))
-    return out
-
-
 @pytest.mark.slow
 def test_a_task_whose_worker_is_killed_is_run_again_and_loses_nothing(cluster, steps):
     _, nodes = cluster
@@ -200,7 +157,7 @@ def test_a_task_whose_worker_is_killed_is_run_again_and_loses_nothing(cluster, s
     deadline = time.monotonic() + DEADLINE
     running = []
     while not running and not future.done() and time.monotonic() < deadline:
-        running = _task_processes(nodes)
+        running = task_processes(nodes)
         time.sleep(0.05)
     assert running, "the task was never seen running"
     time.sleep(0.5)                                   # well inside the task (seconds of planning)
