@@ -519,10 +519,13 @@ def _plan_blisk(args, geometry, options, progress, out, err):
             seq = store.get_sequence(set_id_of(rep))
             if seq is None:
                 return None
-            plans = [stored_to_plan(store.get(pid), str(store.path)) for pid in seq.plan_ids]
+            records = [store.get(pid) for pid in seq.plan_ids]
+            if None in records:
+                return None
+            plans = [stored_to_plan(rec, str(store.path)) for rec in records]
             return GroupPlan(rep, members, devs, plans=plans, labels=list(seq.meta.get("labels") or []),
                              message=f"set {seq.sequence_id} from the plan store {store.path}")
-        except (PlanStoreError, NotCertifiedError, TypeError) as exc:
+        except (PlanStoreError, NotCertifiedError) as exc:
             print(f"warning: group of channel {rep}: the plan store's copy is not used ({exc}); planning it anew",
                   file=err)
             return None
