@@ -3,8 +3,11 @@
 ``edm-plan plan --geometry FILE.yaml --channel K --out DIR`` plans one channel
 and writes the plan export (:mod:`edm_planner.records.plan_export`); the plan is
 kept in the plan store shared with the nodes (:mod:`edm_planner.records.store`)
-and an equal request is answered from there. ``edm-plan export`` times a plan
-(an export directory or a plan id in the store) on a machine and writes the NC
+and an equal request is answered from there; ``edm-plan plan --all-channels``
+plans every channel group of the blisk (as measured: each on its own walls) as
+a task (:mod:`edm_planner.machining.blisk_plan`) and writes ``blisk.json``
+beside the groups' exports. ``edm-plan export`` times a plan (an export
+directory, a whole-blisk directory or a plan id in the store) on a machine and writes the NC
 program and the timed CSV; ``edm-plan store list`` shows the stored plans.
 Progress goes to stderr (a bar on a terminal, lines otherwise), a short summary
 to stdout. Exit status: 0 on success, otherwise the
