@@ -472,6 +472,7 @@ def _plan_blisk(args, geometry, options, progress, out, err):
     from .records.set_files import write_set, write_stored_set
 
     gid, n = geometry.geometry_id, geometry.blisk.blade_count
+    groups = geometry.channel_groups()
     design = _design(args, geometry.design)
     fixed = not (design is None and not args.electrode and not geometry.design_given)
     store = open_store(args.store)
@@ -555,7 +556,7 @@ def _plan_blisk(args, geometry, options, progress, out, err):
                 exports[rep] = [str(write_plan(p, where / label, blisk).parent.relative_to(root))
                                 for p, label in zip(outcome.plans, outcome.labels)]
         finally:
-            _write_blisk_json(root, geometry, args.geometry, exports, done)
+            _write_blisk_json(root, geometry, groups, args.geometry, exports, done)
         if store is None or outcome.status != "planned":
             return
         try:                        # after the files: a store that cannot take them costs no plan
@@ -593,7 +594,7 @@ def _plan_blisk(args, geometry, options, progress, out, err):
             print(f"[{time.perf_counter() - t0:6.1f} s] {line}", file=err, flush=True)
 
     result = plan_blisk(geometry, request, workers=args.workers, ray_address=args.ray_address, stored=stored,
-                        keep=keep, report=report)
+                        keep=keep, report=report, groups=groups)
     progress.close()
     if result.steps is not None and store is not None:
         try:
@@ -601,7 +602,7 @@ def _plan_blisk(args, geometry, options, progress, out, err):
                                {"blade_count": n, "groups": [g.to_dict() for g in result.groups]})
         except PlanStoreError as exc:
             print(f"warning: the whole-blisk program is not kept in the plan store: {exc.message}", file=err)
-    _write_blisk_json(root, geometry, args.geometry, exports, done, result)
+    _write_blisk_json(root, geometry, groups, args.geometry, exports, done, result)
     lines = [f"whole blisk {gid[:12]}: {len(result.groups)} channel group(s) of {n} channels, "
              f"{'fixed design' if fixed else 'electrode set per group'}"
              + (f", planned on {result.executor}" if result.executor else "") + f", {result.elapsed_s:.1f} s"]
@@ -625,11 +626,10 @@ def _plan_blisk(args, geometry, options, progress, out, err):
     return 0
 
 
-def _write_blisk_json(root, geometry, source, exports, done, result=None):
+def _write_blisk_json(root, geometry, channel_groups, source, exports, done, result=None):
     """blisk.json: the groups finished so far (``done``), and with ``result`` the whole (complete or not)."""
     groups = []
-    for rep, members, devs in geometry.channel_groups() if result is None else (
-            (g.representative, g.members, g.deviations) for g in result.groups):
+    for rep, members, devs in channel_groups:
         g = done.get(rep) if result is None else next(x for x in result.groups if x.representative == rep)
         entry = g.to_dict() if g is not None else {"representative": rep, "members": members,
                                                     "wall_deviation_mm": devs, "status": "pending"}

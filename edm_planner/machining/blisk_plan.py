@@ -227,7 +227,7 @@ def design_electrode_ids(geometry, design=None, electrode_id=""):
 
 
 def plan_blisk(geometry, request, *, workers=None, ray_address="", kind=None, stored=None, keep=None,
-               report=None, max_retries=None):
+               report=None, max_retries=None, groups=None):
     """Plan every channel group of ``geometry`` as tasks; the whole-blisk program's steps when all succeed.
 
     Parameters
@@ -252,6 +252,8 @@ def plan_blisk(geometry, request, *, workers=None, ray_address="", kind=None, st
         are handed out.
     max_retries : int, optional
         Ray only: how often a task whose worker died is run again (default :data:`~.executors.MAX_RETRIES`).
+    groups : list, optional
+        ``geometry.channel_groups()`` where the caller has them already (they take a second or two to find).
 
     Returns
     -------
@@ -260,7 +262,7 @@ def plan_blisk(geometry, request, *, workers=None, ray_address="", kind=None, st
     t0 = time.perf_counter()
     n = geometry.blisk.blade_count
     groups = [(int(rep), [int(k) for k in members], [float(d) for d in devs])
-              for rep, members, devs in geometry.channel_groups()]
+              for rep, members, devs in (geometry.channel_groups() if groups is None else groups)]
     done, pending = {}, []
     for group in groups:
         found = stored(group) if stored is not None else None
