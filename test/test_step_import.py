@@ -1,12 +1,15 @@
 """STEP import (edm_planner.geometry.step_import; issue 28, part 1).
 
-STEP files are written FROM the parametric default blisk with OpenCascade (test/step_fixtures.py): a sector
-of a 30-blade blisk (the default blade spans more than the 60-blade pitch in angle at the hub, so a sector
-with meridional sides could not hold it whole) lofted through every section of the blade, the same with a
-filleted tip, and a whole blisk of 3 blades turned off X (lofted through every third section, to keep the
-boolean fuse of three blades short). Each is imported
-and compared with the Blisk built from the same blade: the wall angles of channel 0 at meridional points
-across the blade, as a distance along the circle (r * dtheta, mm).
+STEP files are written FROM the parametric default blisk with OpenCascade (the writer is
+edm_planner/bench/step_writer.py, the test files of their own test/step_fixtures.py): a sector of a 30-blade
+blisk (the default blade spans more than the 60-blade pitch in angle at the hub, so a sector with meridional
+sides could not hold it whole) lofted through every section of the blade; the same with a real CAD fillet
+where the blade meets the shroud (OpenCascade's fillet tool on the blade lofted through smooth closed
+sections); the same with a fillet built into the loft (a flare of exactly known depth); and a whole blisk of 3
+blades turned off X (lofted through every third section, to keep the boolean fuse of three blades short). Each
+is imported and compared with the Blisk built from the same blade: the wall angles of channel 0 at meridional
+points across the blade, as a distance along the circle (r * dtheta, mm). The whole 60-blade blisk is the
+bench's (``python -m edm_planner.bench --only step``): fusing 60 blades takes minutes.
 """
 
 import pathlib
@@ -37,7 +40,9 @@ COARSE_ROUND_TRIP_MM = 0.15
 FIT_MM = 0.02
 #: the filleted sector's fillet radius [mm]
 FILLET_MM = 1.0
-#: round trip bound of the filleted sector below its fillet [mm]: its test file is lofted through fewer rows
+#: the CAD-filleted sector's fillet radius [mm]: BRepFilletAPI_MakeFillet on the blade-to-shroud edge
+CAD_FILLET_MM = 1.0
+#: round trip bound of the flared sector below its flare [mm]: its test file is lofted through fewer rows
 #: (six over the lower 80 % of the span), so more of the deviation is the file's own (measured 0.1779 mm)
 FILLETED_ROUND_TRIP_MM = 0.25
 
@@ -86,28 +91,8 @@ def whole_turned(nominal, blade, tmp_path_factory):
     return path, load_geometry(path)
 
 
-def _wall_deviation(original, imported, turn=0.0, shift=0.0, core=False, top=1.0):
-    """Largest r * |dtheta| [mm] of channel 0's two walls between the original and the imported blisk, at
-    meridional points over the blade (imported point = original point shifted by ``shift`` along X, angles
-    turned by ``turn``), where both have both walls; and the number of points compared."""
-    b = original.blade
-    x0, x1 = original.full_span_axial_range
-    xs = np.linspace(x0, x1, 60)
-    f = np.linspace(0.05, 0.95, 19) if core else np.linspace(0.0, 1.0, 21)
-    f = f[f <= top]
-    xx, ff = np.meshgrid(xs, f)
-    hub, shroud = original.hub.radius_at(xx), original.shroud.radius_at(xx)
-    rr = hub + ff * (shroud - hub)
-    x, r = xx.ravel(), rr.ravel()
-    s0, p0, in0 = original.wall_angles(x, r)
-    s1, p1, in1 = imported.wall_angles(x + shift, r)
-    ok = in0 & in1
-    pitch = original.pitch
-    d_s = (s1 - turn - s0 + pitch / 2) % pitch - pitch / 2
-    d_p = (p1 - turn - p0 + pitch / 2) % pitch - pitch / 2
-    dev = np.maximum(np.abs(d_s), np.abs(d_p)) * r
-    assert b.shape[0] > 2
-    return float(dev[ok].max()), int(ok.sum()), int(in0.sum())
+#: the round trip (edm_planner/bench/step_writer.py, shared with the STEP bench suite)
+_wall_deviation = fx.wall_deviation
 
 
 def test_sector_round_trip(sector, nominal):
@@ -140,7 +125,8 @@ def filleted(nominal, tmp_path_factory):
 
 
 def test_filleted_tip(filleted, nominal):
-    """The fillet is found and kept out of the sections; below it the blade is the original's."""
+    """A fillet built into the loft (a flare of exactly known depth, see fx.filleted_sector_solid) is found
+    and kept out of the sections; below it the blade is the original's."""
     path, g = filleted
     info = g.info()
     assert info["step_blade_count"] == 30
@@ -161,6 +147,71 @@ def test_filleted_tip(filleted, nominal):
     # the fillet itself is not blade: the filleted STEP's wall there is FILLET_MM * (1 - cos) off the blade
     flat, _, _ = _wall_deviation(original, g.blisk, top=1.0)
     print(f"filleted sector, whole span (the blade extrapolated through the fillet): {flat:.4f} mm")
+
+
+@pytest.fixture(scope="module")
+def cad_filleted(nominal, tmp_path_factory):
+    """The sector with a CAD fillet at the tip, the fillet faces' depth below the shroud measured on the faces
+    themselves (a 201 x 201 grid over their parameters), and the file imported."""
+    solid, faces = fx.cad_filleted_sector(nominal, CAD_FILLET_MM, 30)
+    depth = max(fx.face_wall_depth(f, nominal.shroud, 201) for f in faces["shroud"])
+    path = fx.write_step(solid, tmp_path_factory.mktemp("step") / "sector30_cad_fillet.step")
+    return path, load_geometry(path), faces["shroud"], depth
+
+
+def test_cad_filleted_tip(cad_filleted, nominal):
+    """A real CAD fillet: OpenCascade's fillet tool (BRepFilletAPI_MakeFillet, done, and the solid valid by
+    BRepCheck_Analyzer) rounds the edge where the blade meets the shroud. The import finds the fillet face and
+    its depth, keeps its sections below it, and below it the blade is the original's within the bound of the
+    file without a fillet."""
+    path, g, faces, depth = cad_filleted
+    assert len(faces) >= 1
+    # the fillet reaches further down the blade than its radius: the blade meets the shroud at less than a
+    # right angle on one side (measured 1.331 mm for 1 mm)
+    assert CAD_FILLET_MM < depth < 1.5 * CAD_FILLET_MM
+    info = g.info()
+    assert info["step_kind"] == "sector" and info["step_blade_count"] == 30
+    assert info["step_fillet_faces"] == len(faces)
+    assert abs(info["step_tip_fillet_depth"] - depth) < 0.02
+    assert info["step_root_fillet_depth"] == 0.0
+    # the sections stay below the fillet's lowest reach
+    assert info["step_section_radii"][1] < info["step_shroud_r_range"][0] - info["step_tip_fillet_depth"]
+    original = Blisk(30, nominal.hub, nominal.shroud, nominal.blade)
+    below = 1.0 - 2 * CAD_FILLET_MM / original.channel_height_range[0]    # 2 mm and more below the shroud
+    dev, n, n0 = _wall_deviation(original, g.blisk, top=below)
+    print(f"CAD-filleted tip: fillet depth {depth:.4f} mm (found {info['step_tip_fillet_depth']:.4f}); round "
+          f"trip below the fillet {dev:.4f} mm over {n} points ({n0}); fit {info['step_fit_deviation_mm']:.4f} mm")
+    assert n > 0.95 * n0
+    assert dev < ROUND_TRIP_MM
+    assert info["step_fit_deviation_mm"] < FIT_MM and info["step_fit_points"] > 100
+
+
+def test_cad_filleted_root_and_tip(nominal, tmp_path):
+    """CAD fillets at root and tip at once (the blade lofted through every second section and every fourth
+    station, on which the fillet tool rounds both): both found, with their depths, and the sections between
+    them; the round trip between them within the bound of a coarsely lofted file."""
+    solid, faces = fx.cad_filleted_sector(nominal, CAD_FILLET_MM, 30, walls=("hub", "shroud"), section_stride=2,
+                                          station_stride=4)
+    assert len(faces["hub"]) >= 1 and len(faces["shroud"]) >= 1
+    root = max(fx.face_wall_depth(f, nominal.hub, 201) for f in faces["hub"])
+    tip = max(fx.face_wall_depth(f, nominal.shroud, 201) for f in faces["shroud"])
+    g = load_geometry(fx.write_step(solid, tmp_path / "sector30_cad_fillets.step"))
+    info = g.info()
+    print(f"CAD-filleted root and tip: depths {root:.4f} / {tip:.4f} mm, found {info['step_root_fillet_depth']:.4f}"
+          f" / {info['step_tip_fillet_depth']:.4f} mm")
+    assert info["step_fillet_faces"] == len(faces["hub"]) + len(faces["shroud"])
+    assert abs(info["step_root_fillet_depth"] - root) < 0.02 and abs(info["step_tip_fillet_depth"] - tip) < 0.02
+    assert CAD_FILLET_MM < root < 1.5 * CAD_FILLET_MM and CAD_FILLET_MM < tip < 1.5 * CAD_FILLET_MM
+    lo, hi = info["step_section_radii"]
+    assert lo > info["step_hub_r_range"][1] + root and hi < info["step_shroud_r_range"][0] - tip
+    original = Blisk(30, nominal.hub, nominal.shroud, nominal.blade)
+    h = original.channel_height_range[0]
+    dev, n, n0 = _wall_deviation(original, g.blisk, top=1.0 - 2 * CAD_FILLET_MM / h, bottom=2 * CAD_FILLET_MM / h)
+    print(f"round trip between the fillets {dev:.4f} mm over {n} points ({n0}); fit "
+          f"{info['step_fit_deviation_mm']:.4f} mm")
+    assert n > 0.95 * n0
+    assert dev < COARSE_ROUND_TRIP_MM
+    assert info["step_fit_deviation_mm"] < FIT_MM
 
 
 def test_whole_blisk_off_x(whole_turned, nominal):
