@@ -5,8 +5,10 @@ from .machining import bench_electrode_set
 from .process import bench_process
 from .scaleout import bench_scaleout
 from .speed import bench_speed
+from .step import bench_step
 
 #: suite name -> function returning its JSON-able figures
 SUITES = {"geometry": bench_geometry, "interference": bench_interference, "planning": bench_planning,
           "roughing": bench_roughing, "electrode_set": bench_electrode_set, "speed": bench_speed,
-          "process": bench_process, "scaleout": bench_scaleout}
+          "process": bench_process, "scaleout": bench_scaleout,
+          "step": bench_step}
