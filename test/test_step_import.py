@@ -412,3 +412,23 @@ def test_blade_zero_is_followed_round_a_sixty_blade_blisk(nominal):
     assert np.abs(sections.theta_plus.ravel() - tp).max() < 1e-9
     centre = 0.5 * (sections.theta_minus + sections.theta_plus)
     assert np.ptp(centre) > nominal.pitch             # the case: it sweeps more than a pitch
+
+
+def test_the_bench_keeps_its_whole_blisk_by_what_it_is_written_from(nominal, tmp_path):
+    """The step bench's cache (python -m edm_planner.bench --only step, too slow for the tests: fusing 60
+    blades takes minutes): the key follows the blisk it is written from, and a file under the key is read back
+    with the write record it was kept with, not written again."""
+    from edm_planner.bench import step
+
+    key = step.writer_key(nominal)
+    assert key == step.writer_key(fx.default_blisk())
+    assert key != step.writer_key(Blisk(59, nominal.hub, nominal.shroud, nominal.blade))
+    moved = Blisk(60, nominal.hub, nominal.shroud, nominal.blade.rotated(1e-9))
+    assert key != step.writer_key(moved)
+    assert key != step.writer_key(nominal, section_stride=1)
+    kept = tmp_path / f"{key[:32]}.whole60.step"
+    kept.write_text("kept")
+    kept.with_suffix(".json").write_text('{"key": "%s", "fuse_s": 992.5}' % key)
+    path, record = step.whole_blisk_step(nominal, tmp_path)
+    assert path == kept and path.read_text() == "kept"
+    assert record == {"key": key, "fuse_s": 992.5, "write_cached": True}
