@@ -91,3 +91,60 @@ def narrowing(offsets):
     """Per channel k: how far its walls come into it [mm] at most, blade k's suction face (+) or blade
     k+1's pressure face (-)."""
     return np.maximum(offsets[:, 1], -np.roll(offsets[:, 0], -1))
+
+
+def whole_blisk_mesh(nominal, measured=None, resolution=1.0, sections=720):
+    """The whole blisk as one closed mesh, as an inspection system's scan gives it: every blade (as measured
+    where ``measured`` gives it, else nominal) joined with a hub ring and a shroud ring by a mesh boolean
+    (manifold3d, in double precision).
+
+    Parameters
+    ----------
+    nominal : Blisk
+    measured : MeasuredBlades, optional
+    resolution : float
+        Edge length [mm] of the blade faces' grids (about).
+    sections : int
+        Facets of the rings round the turn.
+
+    Returns
+    -------
+    trimesh.Trimesh
+    """
+    import manifold3d
+    import trimesh
+
+    from edm_planner.geometry.blisk import Blisk
+    from edm_planner.geometry.mesh_build import closed_blade_mesh
+
+    def solid(mesh):
+        return manifold3d.Manifold(manifold3d.Mesh64(np.ascontiguousarray(mesh.vertices, dtype=np.float64),
+                                                     np.ascontiguousarray(mesh.faces, dtype=np.uint64)))
+
+    hub, shroud = nominal.hub, nominal.shroud
+    x0 = max(hub.x_range[0], shroud.x_range[0])
+    x1 = min(hub.x_range[1], shroud.x_range[1])
+    xs = np.linspace(x0, x1, 81)
+    r_in = float(hub.radius_at(xs).min()) - 10.0
+    r_out = float(shroud.radius_at(xs).max()) + 10.0
+    parts = []
+    for inner, outer in ((np.full_like(xs, r_in), hub.radius_at(xs)), (shroud.radius_at(xs), np.full_like(xs, r_out))):
+        # (radius, height) round the ring's cross-section, counter-clockwise: outward faces
+        ring = np.r_[np.c_[inner, xs], np.c_[outer[::-1], xs[::-1]], [[inner[0], xs[0]]]]
+        mesh = trimesh.creation.revolve(ring, sections=sections)
+        if mesh.volume < 0:
+            mesh.invert()
+        v = mesh.vertices
+        mesh = trimesh.Trimesh(np.c_[v[:, 2], v[:, 0], v[:, 1]], mesh.faces, process=True)   # Z onto X
+        parts.append(solid(mesh))
+    n = nominal.blade_count
+    given = {} if measured is None else measured.blades
+    for k in range(n):
+        blade = Blisk(n, hub, shroud, given.get(k, nominal.blade))
+        minus, plus = blade._face_grids(resolution)
+        mesh = closed_blade_mesh(minus, plus)
+        mesh.apply_transform(trimesh.transformations.rotation_matrix(k * nominal.pitch, [1, 0, 0]))
+        parts.append(solid(mesh))
+    # slivers where the blades meet the rings collapsed (a scan has none; the loader drops zero-area triangles)
+    whole = manifold3d.Manifold.batch_boolean(parts, manifold3d.OpType.Add).simplify(1e-6).to_mesh64()
+    return trimesh.Trimesh(np.asarray(whole.vert_properties)[:, :3], np.asarray(whole.tri_verts), process=True)

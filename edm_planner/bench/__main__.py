@@ -16,14 +16,15 @@ from ..environment import configure_process
 # this entry point's set-up, before the suites import the core's kernel modules (numba's cache directory)
 configure_process()
 
-from .suites import SUITES  # noqa: E402  (after the set-up above)
+from .suites import OPT_IN, SUITES  # noqa: E402  (after the set-up above)
 from .cpu import AVX2_TARGET, cpu_label, cpu_record  # noqa: E402
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description="Run the edm_planner benchmarks (JSON out).")
     parser.add_argument("--out", default="out/bench.json", help="JSON file to write")
-    parser.add_argument("--only", choices=sorted(SUITES), action="append", help="run only these suites")
+    parser.add_argument("--only", choices=sorted(SUITES), action="append",
+                        help=f"run only these suites (default: all but {', '.join(sorted(OPT_IN))}, run only when named)")
     parser.add_argument("--emulate-avx2", action="store_true",
                         help="compile the kernels for an AVX2 CPU without AVX-512 (AMD Zen 3: NUMBA_CPU_NAME, "
                              "NUMBA_CPU_FEATURES), in this process and the ones it starts; the arithmetic of "
@@ -40,7 +41,7 @@ def main(argv=None):
     result = {"machine": {"python": platform.python_version(), "processor": platform.machine(), "cpu": cpu},
               "timestamp": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     failed = []
-    for name in args.only or sorted(SUITES):
+    for name in args.only or sorted(set(SUITES) - OPT_IN):
         t = time.perf_counter()
         try:
             result[name] = SUITES[name]()

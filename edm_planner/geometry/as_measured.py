@@ -49,15 +49,19 @@ class MeasuredBlades:
         Channels whose walls agree within this [mm] (:func:`wall_deviation`) share a plan.
     sources : dict
         Blade index -> what the blade was read from (for reports).
+    scan : dict
+        What the whole-blisk scan's reading found (:func:`~.blisk_scan.read_blisk_scan`'s report), None without.
     """
 
     blades: dict
     tolerance: float = 0.005
     sources: dict = None
+    scan: dict = None
 
     def to_dict(self):
         """Plain data (the geometry topic's ``model_json`` carries it under ``as_measured``)."""
         return {"tolerance": self.tolerance, "sources": {str(k): v for k, v in (self.sources or {}).items()},
+                "scan": self.scan,
                 "blades": {str(k): {"x": b.x.tolist(), "r": b.r.tolist(), "theta_minus": b.theta_minus.tolist(),
                                     "theta_plus": b.theta_plus.tolist()} for k, b in self.blades.items()}}
 
@@ -68,7 +72,8 @@ class MeasuredBlades:
             return None
         blades = {int(k): BladeSections(b["x"], b["r"], b["theta_minus"], b["theta_plus"])
                   for k, b in data["blades"].items()}
-        return cls(blades, float(data["tolerance"]), {int(k): v for k, v in data.get("sources", {}).items()})
+        return cls(blades, float(data["tolerance"]), {int(k): v for k, v in data.get("sources", {}).items()},
+                   data.get("scan"))
 
     def channel_blades(self, channel, blade_count):
         """(blade k, blade k+1) of channel k as given, None where nominal."""

@@ -24,8 +24,12 @@ or, for a blisk from CAD, instead of blade_count, hub_profile, shroud_profile an
 the file declares). ``load_geometry`` also takes a ``.step``/``.stp`` file directly.
     as_measured:                          # optional: blades as inspected (edm_planner.geometry.as_measured)
       tolerance: 0.005                    # [mm] channels whose walls agree within this share a plan
+      scan: {file: S.stl, length_unit: mm, section_count: 25, station_count: 81,   # or scan: S.stl: the whole
+             root_fillet_depth: 0.0, tip_fillet_depth: 0.0}   # blisk as one closed mesh (every blade read from
+                                          # it, edm_planner.geometry.blisk_scan; fillet depths in mm)
       blades:                             # each in its own place on the part (blade k near k * pitch)
         - {blade: 3, sections: {file: F, format: csv}}   # or mesh: F, as for blade; others stay nominal
+                                          # (or as scanned; a blade given here takes the scan's place)
 
 A document holding only the blisk keys loads with the default electrode design.
 A blade mesh is sliced only over the span the channel needs (hub to shroud
@@ -312,6 +316,8 @@ class LoadedGeometry:
         if self.measured is not None:
             groups = self.channel_groups()
             n = self.blisk.blade_count
+            for key, value in (self.measured.scan or {}).items():
+                out[f"scan_{key}"] = value
             out.update(measured_blades=sorted(self.measured.blades), as_measured_tolerance=self.measured.tolerance,
                        channels_own_geometry=sum(self.for_channel(k).blisk is not self.blisk for k in range(n)),
                        channel_groups=len(groups),
@@ -554,7 +560,7 @@ def build_geometry(doc, files, source=""):
 
 def _loaded(doc, files, source, blisk, **found):
     """The LoadedGeometry of a built blisk (any source): blades as measured, the electrode design, the id."""
-    measured = _as_measured(doc.get("as_measured"), blisk, files) if "as_measured" in doc else None
+    measured, checks = _as_measured(doc.get("as_measured"), blisk, files) if "as_measured" in doc else (None, {})
     design = ElectrodeDesign.from_dict(doc.get("electrode"))
     design_given = doc.get("electrode") is not None
     # a design the file gives is checked now (its errors belong to the load); the default one on first use
@@ -562,23 +568,36 @@ def _loaded(doc, files, source, blisk, **found):
     digest = hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode())
     for fname, h in files.hashes:
         digest.update(f"\0{fname}\0{h}".encode())
-    return LoadedGeometry(digest.hexdigest(), blisk, design, electrodes, source, design_given=design_given,
-                          measured=measured, **found)
+    geometry = LoadedGeometry(digest.hexdigest(), blisk, design, electrodes, source, design_given=design_given,
+                              measured=measured, **found)
+    if measured is not None:
+        _channels_as_measured(geometry, checks)
+    return geometry
 
 
 def _as_measured(spec, blisk, files):
-    """The ``as_measured`` section: blades as inspected, each turned back into blade 0's position."""
+    """The ``as_measured`` section: blades as inspected (a whole-blisk scan and/or blade by blade), each turned
+    back into blade 0's position."""
     if not isinstance(spec, dict):
-        raise GeometryError("as_measured: expected a mapping with 'blades' (and optionally 'tolerance' in mm)")
-    _known(spec, {"blades", "tolerance"}, "as_measured")
+        raise GeometryError("as_measured: expected a mapping with 'blades' and/or 'scan' (and optionally "
+                            "'tolerance' in mm)")
+    _known(spec, {"blades", "scan", "tolerance"}, "as_measured")
     tol = spec.get("tolerance", 0.005)
     if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not (0 <= tol <= 0.1):
         raise GeometryError(f"as_measured.tolerance: must be a number of mm in 0 .. 0.1, got {tol!r}")
-    entries = spec.get("blades")
-    if not isinstance(entries, list) or not entries:
-        raise GeometryError("as_measured.blades: expected a non-empty list of {blade: k, sections|mesh: ...}")
+    entries = spec.get("blades", [] if "scan" in spec else None)
+    if not isinstance(entries, list) or not (entries or "scan" in spec):
+        raise GeometryError("as_measured.blades: expected a non-empty list of {blade: k, sections|mesh: ...} "
+                            "(or give the whole blisk as 'scan')")
     blades, sources = {}, {}
     n = blisk.blade_count
+    scan, checks = None, {}
+    if "scan" in spec:
+        scanned, checks, scan = _scan(spec["scan"], blisk, files)
+        for k, sections in scanned.items():
+            blades[k] = to_blade_zero(sections, k, n)
+            sources[k] = "scan"
+    given = set()
     for i, entry in enumerate(entries):
         where = f"as_measured.blades[{i}]"
         if not isinstance(entry, dict) or "blade" not in entry:
@@ -587,8 +606,9 @@ def _as_measured(spec, blisk, files):
         k = entry["blade"]
         if isinstance(k, bool) or not isinstance(k, int) or not 0 <= k < n:
             raise GeometryError(f"{where}.blade: must be a blade index in 0 .. {n - 1}, got {k!r}")
-        if k in blades:
+        if k in given:
             raise GeometryError(f"{where}.blade: blade {k} is given twice")
+        given.add(k)
         rest = {key: v for key, v in entry.items() if key != "blade"}
         try:
             sections, source, _ = _blade(rest, blisk.hub, blisk.shroud, files)
@@ -596,11 +616,52 @@ def _as_measured(spec, blisk, files):
             raise type(exc)(f"{where} (blade {k}): {exc.message}") from None
         blades[k] = to_blade_zero(sections, k, n)
         sources[k] = source
-    measured = MeasuredBlades(blades, float(tol), sources)
-    # every channel a measured blade bounds must be a valid blisk (no intersecting neighbours)
-    for k in sorted({c for b in blades for c in (b, (b - 1) % n)}):
-        channel_blisk(blisk, measured, k)
-    return measured
+    checks = {k: c for k, c in checks.items() if sources.get(k) == "scan"}
+    return MeasuredBlades(blades, float(tol), sources, scan), checks
+
+
+def _channels_as_measured(geometry, checks):
+    """Every channel a measured blade bounds made (so checked: no intersecting neighbours) and kept; for a scan,
+    the fit of the channels' faces to the scan's check sections."""
+    from .blisk_scan import face_fit
+
+    n = geometry.blisk.blade_count
+    fit, points = 0.0, 0
+    for k in sorted({c for b in geometry.measured.blades for c in (b, (b - 1) % n)}):
+        view = geometry.for_channel(k).blisk
+        if checks:
+            dev, count = face_fit(view, checks.get(k), checks.get((k + 1) % n), k)
+            fit, points = max(fit, dev), points + count
+    if checks:
+        geometry.measured.scan.update(fit_deviation_mm=fit, fit_points=points)
+
+
+def _scan(spec, blisk, files):
+    """The blades of an ``as_measured.scan`` (a closed mesh of the whole blisk), in place, and the scan's report."""
+    from .blisk_scan import read_blisk_scan
+
+    if isinstance(spec, str):
+        spec = {"file": spec}
+    if not isinstance(spec, dict):
+        raise GeometryError("as_measured.scan: expected a file name or a mapping with a 'file' key")
+    _known(spec, {"file", "length_unit", "section_count", "station_count", "root_fillet_depth",
+                  "tip_fillet_depth"}, "as_measured.scan")
+    depths = {}
+    for key in ("root_fillet_depth", "tip_fillet_depth"):
+        v = spec.get(key, 0.0)
+        height = blisk.channel_height_range[0]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v < 0.4 * height:
+            raise GeometryError(f"as_measured.scan.{key}: must be a number of mm in 0 .. {0.4 * height:.3f} "
+                                f"(0.4 of the smallest channel height), got {v!r}")
+        depths[key] = float(v)
+    path = files.resolve(spec.get("file"), "as_measured.scan.file", "mesh")
+    mesh = load_blade_mesh(path, max_bytes=files.limits.mesh_bytes, what="blisk scan")
+    scale = unit_scale(spec.get("length_unit", "mm"), "as_measured.scan")
+    if scale != 1.0:
+        mesh.apply_scale(scale)
+    counts = _slice_counts(spec, "as_measured.scan")
+    found = read_blisk_scan(mesh, blisk, counts["section_count"], counts["station_count"], **depths)
+    return found.blades, found.checks, dict(found.report, file=str(spec.get("file")))
 
 
 class GeometryMemo:

@@ -53,7 +53,7 @@ def _looks_like_stl(path):
     return not _stl_problem(path)
 
 
-def load_blade_mesh(path, max_bytes=None):
+def load_blade_mesh(path, max_bytes=None, what="blade mesh"):
     """Read and validate a closed blade mesh in millimetres.
 
     Parameters
@@ -63,6 +63,8 @@ def load_blade_mesh(path, max_bytes=None):
     max_bytes : int, optional
         Size limit of the file, checked before anything reads it (None: none; the geometry loader passes
         its ``max_mesh_bytes``).
+    what : str
+        What the mesh is, for the messages (``"blade mesh"``, ``"blisk scan"``).
 
     Returns
     -------
@@ -83,40 +85,40 @@ def load_blade_mesh(path, max_bytes=None):
     """
     name = os.fspath(path)
     if not os.path.isfile(name):
-        raise GeometryFileError(f"blade mesh '{name}': file not found")
+        raise GeometryFileError(f"{what} '{name}': file not found")
     suffix = os.path.splitext(name)[1].lower()
     if suffix not in MESH_SUFFIXES:
         raise GeometryFileError(
-            f"blade mesh '{name}': unsupported format '{suffix}' (expected one of {', '.join(MESH_SUFFIXES)})")
+            f"{what} '{name}': unsupported format '{suffix}' (expected one of {', '.join(MESH_SUFFIXES)})")
     if max_bytes is not None:
-        check_file_size(name, max_bytes, f"blade mesh '{name}'", "mesh")
+        check_file_size(name, max_bytes, f"{what} '{name}'", "mesh")
     if suffix == ".stl":
         try:
             problem = _stl_problem(name)
         except OSError as exc:
-            raise GeometryFileError(f"blade mesh '{name}': cannot be read ({exc.strerror or exc})") from None
+            raise GeometryFileError(f"{what} '{name}': cannot be read ({exc.strerror or exc})") from None
         if problem:
-            raise GeometryFileError(f"blade mesh '{name}': {problem}")
+            raise GeometryFileError(f"{what} '{name}': {problem}")
     try:
         mesh = trimesh.load(name, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many kinds for bad files
-        raise GeometryFileError(f"blade mesh '{name}': cannot be read as {suffix[1:].upper()} ({exc})") from exc
+        raise GeometryFileError(f"{what} '{name}': cannot be read as {suffix[1:].upper()} ({exc})") from exc
     if not isinstance(mesh, trimesh.Trimesh):
-        raise GeometryFileError(f"blade mesh '{name}': not a triangle mesh ({type(mesh).__name__})")
+        raise GeometryFileError(f"{what} '{name}': not a triangle mesh ({type(mesh).__name__})")
     if len(mesh.faces) == 0:
         valid_empty = _looks_like_stl(name) if suffix == ".stl" else len(mesh.vertices) > 0
         if not valid_empty:
-            raise GeometryFileError(f"blade mesh '{name}': no geometry could be read, not a {suffix[1:].upper()} mesh")
-        raise GeometryError(f"blade mesh '{name}': the mesh is empty (no triangles)")
+            raise GeometryFileError(f"{what} '{name}': no geometry could be read, not a {suffix[1:].upper()} mesh")
+        raise GeometryError(f"{what} '{name}': the mesh is empty (no triangles)")
     vertices = np.asarray(mesh.vertices)
     if not np.all(np.isfinite(vertices)):
         bad = int(np.count_nonzero(~np.all(np.isfinite(vertices), axis=1)))
-        raise GeometryError(f"blade mesh '{name}': {bad} vertices are NaN or infinite")
+        raise GeometryError(f"{what} '{name}': {bad} vertices are NaN or infinite")
 
     mesh.merge_vertices()
     mesh.update_faces(mesh.nondegenerate_faces())
     mesh.update_faces(mesh.unique_faces())
     mesh.remove_unreferenced_vertices()
     if len(mesh.faces) == 0:
-        raise GeometryError(f"blade mesh '{name}': the mesh is empty (all triangles are degenerate)")
-    return check_blade_solid(mesh, f"blade mesh '{name}'")
+        raise GeometryError(f"{what} '{name}': the mesh is empty (all triangles are degenerate)")
+    return check_blade_solid(mesh, f"{what} '{name}'")
