@@ -165,7 +165,7 @@ def test_geometry_loader_limits_are_parameters(ros, tmp_path):
     node = ros.add(GeometryLoaderNode(context=ros.context, parameter_overrides=[
         Parameter("geometry_file", value=""), Parameter("allowed_directories", value=[str(CONFIG), str(tmp_path)]),
         Parameter("max_mesh_bytes", value=100_000), Parameter("max_table_bytes", value=10_000),
-        Parameter("max_yaml_bytes", value=65_536)]))
+        Parameter("max_yaml_bytes", value=65_536), Parameter("max_step_bytes", value=4_000)]))
     client = ros.add(Node("limits_client", context=ros.context))
 
     def load(**fields):
@@ -182,6 +182,10 @@ def test_geometry_loader_limits_are_parameters(ros, tmp_path):
     refused(res, "blade.mesh.file", "max_mesh_bytes", "100000 bytes")
     res, _ = load(path="rotor37.yaml")
     refused(res, "max_table_bytes")
+    (tmp_path / "big.step").write_text("ISO-10303-21;\n" + "/* padding */\n" * 400)
+    (tmp_path / "step.yaml").write_text("step: big.step\n")
+    res, _ = load(path=str(tmp_path / "step.yaml"))
+    refused(res, "step.file", "max_step_bytes", "4000 bytes")
     res, _ = load(yaml_text="name: x\n" + "#" * 70_000)
     refused(res, "inline YAML", "max_yaml_bytes")
     res, elapsed = load(yaml_text=BOMB)

@@ -13,10 +13,11 @@ frame_id : str
 mesh_resolution : float
     Edge length [mm] of the published channel surface meshes (viewers only;
     nodes rebuild the exact model from model_json).
-max_yaml_bytes, max_mesh_bytes, max_table_bytes : int
-    Size limits [bytes] of the geometry YAML (file or inline), a blade mesh
-    and a table (blade sections, meridional lines): a larger file is refused
-    (FILE_ERROR) before it is parsed. Defaults 4 MiB, 200 MiB, 16 MiB.
+max_yaml_bytes, max_mesh_bytes, max_table_bytes, max_step_bytes : int
+    Size limits [bytes] of the geometry YAML (file or inline), a mesh (a blade's
+    or a whole-blisk scan), a table (blade sections, meridional lines) and a
+    STEP file: a larger file is refused (FILE_ERROR) before it is parsed.
+    Defaults 4 MiB, 200 MiB, 16 MiB, 256 MiB.
 
 Notes
 -----
@@ -51,6 +52,8 @@ from ..ros.shared import LATCHED, config_directory
 from ..ros.conversions import error_code, matrix_to_pose, mesh_marker, mesh_to_msg, summary_to_msg
 
 #: QoS of data that late joiners need (like tf_static)
+#: the kinds of file with a size limit, each a parameter max_<kind>_bytes
+LIMITED_KINDS = ("yaml", "mesh", "table", "step")
 COLOURS = {"suction": (0.2, 0.4, 0.9, 0.6), "pressure": (0.9, 0.3, 0.2, 0.6),
            "hub": (0.5, 0.5, 0.5, 0.5), "shroud": (0.6, 0.6, 0.3, 0.3)}
 
@@ -69,7 +72,7 @@ class GeometryLoaderNode(Node):
         self.declare_parameter("mesh_resolution", 1.0,
                                ParameterDescriptor(description="published surface mesh edge length [mm]"))
         defaults = FileLimits()
-        for kind in ("yaml", "mesh", "table"):
+        for kind in LIMITED_KINDS:
             self.declare_parameter(f"max_{kind}_bytes", defaults.of(kind), ParameterDescriptor(
                 description=f"largest {kind} file read for a geometry [bytes]; larger: refused before parsing"))
         self.add_on_set_parameters_callback(self._check_parameters)
@@ -98,7 +101,7 @@ class GeometryLoaderNode(Node):
                     return SetParametersResult(successful=False, reason=f"not directories: {missing}")
             if p.name == "mesh_resolution" and not 0.05 <= p.value <= 10.0:
                 return SetParametersResult(successful=False, reason="mesh_resolution must be 0.05 .. 10 mm")
-            if p.name in ("max_yaml_bytes", "max_mesh_bytes", "max_table_bytes") and \
+            if p.name in tuple(f"max_{k}_bytes" for k in LIMITED_KINDS) and \
                     (isinstance(p.value, bool) or not isinstance(p.value, int) or p.value < 1):
                 return SetParametersResult(successful=False, reason=f"{p.name} must be a positive integer [bytes]")
         return SetParametersResult(successful=True)
@@ -106,7 +109,7 @@ class GeometryLoaderNode(Node):
     @property
     def file_limits(self):
         """The size limits of the files read for a geometry (parameters max_*_bytes)."""
-        return FileLimits(*(int(self.get_parameter(f"max_{k}_bytes").value) for k in ("yaml", "mesh", "table")))
+        return FileLimits(**{f"{k}_bytes": int(self.get_parameter(f"max_{k}_bytes").value) for k in LIMITED_KINDS})
 
     @property
     def allowed_directories(self):
