@@ -16,7 +16,7 @@ from edm_planner.geometry.loader import load_geometry
 __all__ = ["R_BORE", "R_OUTER", "X_RANGE", "blade_solid", "bspline", "cart", "count", "fuse", "is_valid", "loft",
            "matrix_trsf", "ring", "rotated", "sector_solid", "subshapes", "transformed", "wall_deviation",
            "whole_solid", "write_step", "default_blisk", "filleted_sector_solid", "smooth_blade_solid",
-           "junction_edges", "cad_filleted_sector", "face_wall_depth", "periodic_bspline"]
+           "junction_edges", "cad_filleted_sector", "face_wall_depth"]
 
 
 def default_blisk():
@@ -83,20 +83,6 @@ def filleted_sector_solid(blisk, radius, blade_count, n_u=41):
     return fuse(pieces)
 
 
-def periodic_bspline(points):
-    """A closed (periodic) interpolated B-spline curve through 3-D points, the first not repeated at the end."""
-    from OCP.GeomAPI import GeomAPI_Interpolate
-    from OCP.collections import HArray1_gp_Pnt
-    from OCP.gp import gp_Pnt
-
-    arr = HArray1_gp_Pnt(1, len(points))
-    for i, p in enumerate(points):
-        arr.SetValue(i + 1, gp_Pnt(*(float(v) for v in p)))
-    it = GeomAPI_Interpolate(arr, True, 1e-9)
-    it.Perform()
-    return it.Curve()
-
-
 def smooth_blade_solid(blisk, section_stride=1, station_stride=2):
     """Blade 0 of ``blisk`` lofted through closed smooth sections: as :func:`blade_solid`, but each section one
     periodic B-spline through the pressure face's points LE -> TE and the suction face's TE -> LE, so the
@@ -123,7 +109,8 @@ def smooth_blade_solid(blisk, section_stride=1, station_stride=2):
     for xs, rm, rp, thm, thp in rows:
         pm, pp = cart(xs, rm, thm), cart(xs, rp, thp)
         ring_points = np.r_[pm, pp[-2:0:-1]]             # LE -> TE on the pressure face, back on the suction face
-        maker.AddWire(BRepBuilderAPI_MakeWire(BRepBuilderAPI_MakeEdge(periodic_bspline(ring_points)).Edge()).Wire())
+        closed = BRepBuilderAPI_MakeEdge(bspline(ring_points, periodic=True)).Edge()
+        maker.AddWire(BRepBuilderAPI_MakeWire(closed).Wire())
     maker.CheckCompatibility(False)
     maker.Build()
     return maker.Shape()

@@ -20,8 +20,9 @@ R_OUTER = 126.0
 X_RANGE = (-4.0, 29.0)
 
 
-def bspline(points):
-    """An interpolated B-spline curve (Geom_BSplineCurve) through 3-D points."""
+def bspline(points, periodic=False):
+    """An interpolated B-spline curve (Geom_BSplineCurve) through 3-D points; ``periodic``: closed, the first
+    point not repeated at the end."""
     from OCP.GeomAPI import GeomAPI_Interpolate
     from OCP.collections import HArray1_gp_Pnt
     from OCP.gp import gp_Pnt
@@ -29,7 +30,7 @@ def bspline(points):
     arr = HArray1_gp_Pnt(1, len(points))
     for i, p in enumerate(points):
         arr.SetValue(i + 1, gp_Pnt(*(float(v) for v in p)))
-    it = GeomAPI_Interpolate(arr, False, 1e-9)
+    it = GeomAPI_Interpolate(arr, bool(periodic), 1e-9)
     it.Perform()
     return it.Curve()
 

@@ -148,6 +148,34 @@ def _cell_of(v, lo, h, n):
 
 
 @numba.njit(cache=True)
+def _cell_segments(cell, x, tri, xmin, xmax, ids, cstart):
+    """The segments (ay, az, by, bz) where the plane ``x`` cuts the triangles of a grid cell that straddle it,
+    and those triangles."""
+    lo, hi = cstart[cell], cstart[cell + 1]
+    segments = np.empty((hi - lo, 4))
+    faces = np.empty(hi - lo, dtype=np.int64)
+    m = 0
+    for q in range(lo, hi):
+        f = ids[q]
+        if xmin[f] < x and xmax[f] >= x:
+            segments[m] = _plane_segment(tri[f], x)
+            faces[m] = f
+            m += 1
+    return segments[:m], faces[:m]
+
+
+@numba.njit(cache=True)
+def _append(values, flags, m, value, flag):
+    """``values[m], flags[m] = value, flag``, the arrays doubled when full; returns them."""
+    if m == len(values):
+        values = np.concatenate((values, np.empty(m)))
+        flags = np.concatenate((flags, np.empty(m, dtype=np.bool_)))
+    values[m] = value
+    flags[m] = flag
+    return values, flags
+
+
+@numba.njit(cache=True)
 def _circle_crossings(x, r, start, length, tri, normal, xmin, xmax, ids, cstart, lo, h, n, nt):
     """Where the circle (x, r) crosses the mesh on the arc from ``start`` over ``length``: unwrapped angles [rad]
     and whether the circle enters material there. A triangle is listed in every angular cell it touches, so a
@@ -166,12 +194,10 @@ def _circle_crossings(x, r, start, length, tri, normal, xmin, xmax, ids, cstart,
     m = 0
     for cc in range(c0, c1 + 1):
         it = cc % nt
-        cell = (ix * n[1] + ir) * nt + it
-        for q in range(cstart[cell], cstart[cell + 1]):
-            f = ids[q]
-            if not (xmin[f] < x and xmax[f] >= x):
-                continue
-            ay, az, by, bz = _plane_segment(tri[f], x)
+        segments, faces = _cell_segments((ix * n[1] + ir) * nt + it, x, tri, xmin, xmax, ids, cstart)
+        for i in range(len(faces)):
+            f = faces[i]
+            ay, az, by, bz = segments[i]
             dy, dz = by - ay, bz - az
             A = dy * dy + dz * dz
             if A <= 0.0:
@@ -195,12 +221,9 @@ def _circle_crossings(x, r, start, length, tri, normal, xmin, xmax, ids, cstart,
                 th = start + (th - start) % two_pi
                 if th > start + length:
                     continue
-                if m == len(th_out):
-                    th_out = np.concatenate((th_out, np.empty(m)))
-                    in_out = np.concatenate((in_out, np.empty(m, dtype=np.bool_)))
-                th_out[m] = th
                 # entering when the face's outward normal is against the circle's direction (d/d theta)
-                in_out[m] = -normal[f, 1] * np.sin(th) + normal[f, 2] * np.cos(th) < 0.0
+                th_out, in_out = _append(th_out, in_out, m, th,
+                                         -normal[f, 1] * np.sin(th) + normal[f, 2] * np.cos(th) < 0.0)
                 m += 1
     return th_out[:m], in_out[:m]
 
@@ -218,12 +241,10 @@ def _ray_crossings(x, theta, r_max, tri, normal, xmin, xmax, ids, cstart, lo, h,
     in_out = np.empty(64, dtype=np.bool_)
     m = 0
     for ir in range(n[1]):
-        cell = (ix * n[1] + ir) * nt + it
-        for q in range(cstart[cell], cstart[cell + 1]):
-            f = ids[q]
-            if not (xmin[f] < x and xmax[f] >= x):
-                continue
-            ay, az, by, bz = _plane_segment(tri[f], x)
+        segments, faces = _cell_segments((ix * n[1] + ir) * nt + it, x, tri, xmin, xmax, ids, cstart)
+        for i in range(len(faces)):
+            f = faces[i]
+            ay, az, by, bz = segments[i]
             dy, dz = by - ay, bz - az
             den = dy * ez - dz * ey
             if den == 0.0:
@@ -234,11 +255,7 @@ def _ray_crossings(x, theta, r_max, tri, normal, xmin, xmax, ids, cstart, lo, h,
             s = (ay + u * dy) * ey + (az + u * dz) * ez
             if s <= 0.0 or s > r_max or _cell_of(s, lo[1], h[1], n[1]) != ir:
                 continue
-            if m == len(s_out):
-                s_out = np.concatenate((s_out, np.empty(m)))
-                in_out = np.concatenate((in_out, np.empty(m, dtype=np.bool_)))
-            s_out[m] = s
-            in_out[m] = normal[f, 1] * ey + normal[f, 2] * ez < 0.0
+            s_out, in_out = _append(s_out, in_out, m, s, normal[f, 1] * ey + normal[f, 2] * ez < 0.0)
             m += 1
     return s_out[:m], in_out[:m]
 
