@@ -42,7 +42,7 @@ def scanned(tmp_path_factory, default_geometry):
     mesh = whole_blisk_mesh(default_geometry.blisk, inspected.measured, resolution=RESOLUTION)
     assert mesh.is_watertight and mesh.body_count == 1
     mesh.export(directory / "scan.ply")
-    return load_geometry(_scan_yaml(directory)), inspected, mesh, directory
+    return load_geometry(_scan_yaml(directory), cache_dir=directory / "cache"), inspected, mesh, directory
 
 
 def test_rays_and_circles_cross_the_mesh_where_trimesh_finds_it(scanned):
@@ -115,11 +115,30 @@ def test_the_scanned_channels_are_the_inspected_ones(scanned, default_geometry):
 
 def test_a_blade_given_by_itself_takes_the_scans_place(scanned):
     g, _, _, directory = scanned
-    both = load_geometry(_scan_yaml(directory, extra="  blades:\n    - {blade: 43, sections: {file: blade43.csv}}\n"))
+    both = load_geometry(_scan_yaml(directory, extra="  blades:\n    - {blade: 43, sections: {file: blade43.csv}}\n"),
+                         cache_dir=directory / "cache")
     assert both.measured.sources[43] == "sections" and both.measured.sources[44] == "scan"
     assert np.array_equal(both.measured.blades[43].theta_minus,
                           load_geometry(directory / "blisk.yaml").measured.blades[43].theta_minus)
     assert np.array_equal(both.measured.blades[44].theta_minus, g.measured.blades[44].theta_minus)
+
+
+def test_the_scan_is_read_once_and_kept_by_its_bytes(scanned, tmp_path):
+    """A scan read before is answered from the cache (keyed by the mesh's bytes, the nominal blisk and the
+    reading's options): the same blades and report; an unreadable cache file is no answer."""
+    from edm_planner.geometry.blisk_scan import load_scan
+
+    g, _, _, directory = scanned
+    assert g.measured.scan["read_from_cache"] is False
+    again = load_geometry(_scan_yaml(directory), cache_dir=directory / "cache")
+    assert again.measured.scan["read_from_cache"] is True
+    assert again.measured.scan["cache_file"] == g.measured.scan["cache_file"]
+    for k in (0, CHANNEL, 59):
+        assert np.array_equal(again.measured.blades[k].theta_plus, g.measured.blades[k].theta_plus)
+    assert again.measured.scan["fit_deviation_mm"] == g.measured.scan["fit_deviation_mm"]
+    assert again.geometry_id == g.geometry_id
+    (tmp_path / "bad.npz").write_bytes(b"not an npz")
+    assert load_scan(tmp_path / "bad.npz") is None and load_scan(tmp_path / "missing.npz") is None
 
 
 def _refused(directory, mesh, name):

@@ -22,7 +22,10 @@ Written by hand (no library reads a blade from a mesh): the axial bins, the plan
 crossings. Units: millimetres and radians. Frame W: X is the blisk axis, ``theta = atan2(z, y)``.
 """
 
+import json
 import logging
+import os
+import pathlib
 import time
 from dataclasses import dataclass, field
 
@@ -30,10 +33,13 @@ import numba
 import numpy as np
 
 from ..errors import GeometryError
+from .sections import BladeSections
 from .solid_sections import blade_sections, merge_wrap, mid_span_blades, stretches, walls, wrap_angle
 
 _log = logging.getLogger(__name__)
 
+#: what the reader gives for a scan: part of the scan cache's key (raise it when the blades read would change)
+READER_VERSION = 1
 #: the scan's hub and shroud may lie this far [mm] from the nominal ones (beyond: not the part, or not aligned)
 WALL_MISMATCH = 0.5
 #: a scanned blade may lie this fraction of the pitch from its nominal place at mid span
@@ -393,3 +399,40 @@ def face_fit(view, suction_check, pressure_check, channel):
             worst = max(worst, float(np.max(np.abs(theta - own)[inside] * r[inside])))
             count += int(inside.sum())
     return worst, count
+
+
+def save_scan(found, path):
+    """Keep what :func:`read_blisk_scan` found in an ``.npz`` (arrays and the report as JSON; no pickles),
+    written to a temporary name and moved into place (a reader never sees half a file)."""
+    arrays = {"report": np.array(json.dumps(found.report))}
+    for k, b in found.blades.items():
+        for name in ("x", "r", "theta_minus", "theta_plus"):
+            arrays[f"blade{k}_{name}"] = getattr(b, name)
+    for k, check in found.checks.items():
+        for name, rows in check.items():
+            arrays[f"check{k}_{name}"] = np.asarray(rows)
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")
+    np.savez(tmp, **arrays)
+    os.replace(tmp, path)
+
+
+def load_scan(path):
+    """A :class:`ScanBlades` kept by :func:`save_scan`, or None where there is none (or it cannot be read)."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            report = json.loads(str(data["report"]))
+            blades, checks = {}, {}
+            for key in data.files:
+                kind, _, name = key.partition("_")
+                if kind.startswith("blade"):
+                    blades.setdefault(int(kind[5:]), {})[name] = data[key]
+                elif kind.startswith("check"):
+                    checks.setdefault(int(kind[5:]), {})[name] = list(data[key])
+    except (OSError, ValueError, KeyError, json.JSONDecodeError) as exc:
+        if os.path.exists(path):
+            _log.warning("scan cache %s not read (%s): reading the scan again", path, exc)
+        return None
+    return ScanBlades({k: BladeSections(v["x"], v["r"], v["theta_minus"], v["theta_plus"])
+                       for k, v in blades.items()}, checks, report)

@@ -50,6 +50,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import yaml
 
+from ..environment import CACHE_ROOT
 from ..errors import ErrorCode, GeometryError, GeometryFileError
 from .as_measured import MeasuredBlades, channel_blisk, channel_field_key, channel_groups, to_blade_zero
 from .blisk import Blisk, mesh_slice_overlap, validate_profiles
@@ -135,8 +136,9 @@ class FileAccess:
         Size limits by kind of file (default :class:`FileLimits`).
     """
 
-    def __init__(self, base_dir, allowed_dirs=None, limits=None):
+    def __init__(self, base_dir, allowed_dirs=None, limits=None, cache_dir=None):
         self.base_dir = pathlib.Path(base_dir)
+        self.cache_dir = CACHE_ROOT if cache_dir is None else os.fspath(cache_dir)     # what is slow to read, kept
         self.allowed = None if allowed_dirs is None else [os.path.realpath(d) for d in allowed_dirs]
         self.limits = limits or FileLimits()
         self.hashes = []        # (name, sha256) of every file read, for the geometry id
@@ -638,7 +640,7 @@ def _channels_as_measured(geometry, checks):
 
 def _scan(spec, blisk, files):
     """The blades of an ``as_measured.scan`` (a closed mesh of the whole blisk), in place, and the scan's report."""
-    from .blisk_scan import read_blisk_scan
+    from .blisk_scan import READER_VERSION, load_scan, read_blisk_scan, save_scan
 
     if isinstance(spec, str):
         spec = {"file": spec}
@@ -655,13 +657,28 @@ def _scan(spec, blisk, files):
                                 f"(0.4 of the smallest channel height), got {v!r}")
         depths[key] = float(v)
     path = files.resolve(spec.get("file"), "as_measured.scan.file", "mesh")
-    mesh = load_blade_mesh(path, max_bytes=files.limits.mesh_bytes, what="blisk scan")
     scale = unit_scale(spec.get("length_unit", "mm"), "as_measured.scan")
-    if scale != 1.0:
-        mesh.apply_scale(scale)
     counts = _slice_counts(spec, "as_measured.scan")
-    found = read_blisk_scan(mesh, blisk, counts["section_count"], counts["station_count"], **depths)
-    return found.blades, found.checks, dict(found.report, file=str(spec.get("file")))
+    # what was read from these very bytes against this nominal blisk is read once (tens of seconds a scan)
+    key = hashlib.sha256(json.dumps({"reader": READER_VERSION, "mesh_sha256": files.hashes[-1][1],
+                                     "scale": scale, "counts": counts, "depths": depths,
+                                     "nominal": blisk.to_dict()}, sort_keys=True).encode()).hexdigest()
+    kept = os.path.join(files.cache_dir, "scan", f"{key}.npz")
+    found = load_scan(kept)
+    if found is None:
+        mesh = load_blade_mesh(path, max_bytes=files.limits.mesh_bytes, what="blisk scan")
+        if scale != 1.0:
+            mesh.apply_scale(scale)
+        found = read_blisk_scan(mesh, blisk, counts["section_count"], counts["station_count"], **depths)
+        try:
+            save_scan(found, kept)
+        except OSError as exc:                 # a read-only cache costs time, not the geometry
+            _log.warning("scan cache %s not written (%s)", kept, exc)
+        from_cache = False
+    else:
+        from_cache = True
+    return found.blades, found.checks, dict(found.report, file=str(spec.get("file")), read_from_cache=from_cache,
+                                            cache_file=kept)
 
 
 class GeometryMemo:
@@ -703,7 +720,7 @@ class GeometryMemo:
             self._entries.popitem(last=False)
 
 
-def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None, memo=None, limits=None):
+def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None, memo=None, limits=None, cache_dir=None):
     """Load a blisk geometry from a YAML file or inline YAML text.
 
     Parameters
@@ -725,6 +742,9 @@ def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None, memo=N
     limits : FileLimits, optional
         Size limits of the YAML, mesh and table files (default :class:`FileLimits`); a
         larger file is refused before it is parsed.
+    cache_dir : path, optional
+        Where what is slow to read is kept, keyed by the bytes read (a whole-blisk scan's blades, under
+        ``scan/``); default ``~/.cache/edm_planner``.
 
     Returns
     -------
@@ -738,7 +758,7 @@ def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None, memo=N
         raise GeometryError("load_geometry: give exactly one of a path and inline YAML text")
     if path is not None and str(path).lower().endswith(STEP_SUFFIXES):
         # a STEP file on its own: the document {name, step: {file}} next to it
-        files = FileAccess(pathlib.Path.cwd(), allowed_dirs, limits)
+        files = FileAccess(pathlib.Path.cwd(), allowed_dirs, limits, cache_dir)
         real = files.resolve(str(path), "geometry file", "step")
         files.hashes.clear()
         files.base_dir = real.parent
@@ -751,7 +771,7 @@ def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None, memo=N
                 memo.remember(doc, files, geometry)
         return geometry
     if path is not None:
-        files = FileAccess(pathlib.Path.cwd(), allowed_dirs, limits)
+        files = FileAccess(pathlib.Path.cwd(), allowed_dirs, limits, cache_dir)
         real = files.resolve(str(path), "geometry file", "yaml")
         files.hashes.clear()      # the YAML's own bytes enter the id through the parsed document
         try:
@@ -762,7 +782,7 @@ def load_geometry(path=None, text=None, allowed_dirs=None, base_dir=None, memo=N
         where = str(path)
     else:
         base = base_dir or (allowed_dirs[0] if allowed_dirs else pathlib.Path.cwd())
-        files = FileAccess(base, allowed_dirs, limits)
+        files = FileAccess(base, allowed_dirs, limits, cache_dir)
         where = "inline YAML"
     doc = parse_document(text, where, files.limits.yaml_bytes)
     if memo is not None:
