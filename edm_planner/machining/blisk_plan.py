@@ -9,8 +9,8 @@ group of every channel. :func:`plan_blisk` plans every group as one task:
   the design planned in the representative channel (:func:`~edm_planner.planning.planner.plan_channel`, as
   ``edm-plan plan --channel REP`` does, bit for bit) and its machining cycle built and certified
   (:class:`~.cycle.CycleBuilder`, the cycle the whole-blisk program runs);
-- otherwise the channel's electrode set designed (:class:`~.electrode_set.SetDesigner`, serial inside the
-  task: the groups are the parallel work).
+- otherwise the channel's electrode set designed (:class:`~.electrode_set.SetDesigner`; inside a local
+  task with the local cores left to it, ``BliskRequest.set_workers``; serial in a Ray task).
 
 The tasks run on an executor of :mod:`.executors`: local spawn worker processes, or Ray tasks (a local Ray,
 or a cluster by address); a task whose worker dies is run again (Ray). The caller's ``stored`` callback
@@ -32,7 +32,7 @@ import os
 import pickle
 import socket
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -41,7 +41,7 @@ from ..geometry.electrode import design_electrodes
 from ..interference.fast import FastChannelField
 from ..planning.planner import plan_channel
 from .cycle import CycleBuilder, CycleOptions, shift_channel
-from .executors import make_executor
+from .executors import LOCAL, kind_for, make_executor
 from .program import channel_program_steps, sequence_id_for
 
 _log = logging.getLogger(__name__)
@@ -74,6 +74,10 @@ class BliskRequest:
         The distance-field cache (every worker loads its group's field from it).
     set_options, process, process_step, process_resolution, stock_mesh
         The electrode-set designer's settings (:class:`~.electrode_set.SetDesigner`), used without a design.
+    set_workers : int
+        The set designer's own local worker processes inside a group's task (:func:`plan_blisk` sets it: the
+        local workers shared among the groups to plan, so that a nominal blisk's one group designs as fast as
+        ``edm-plan plan --channel``; 1 in a Ray task, which holds one CPU of the cluster).
     """
 
     options: object
@@ -87,6 +91,7 @@ class BliskRequest:
     process_step: object = None
     process_resolution: float = 0.5
     stock_mesh: object = None
+    set_workers: int = 1
 
 
 @dataclass
@@ -147,7 +152,7 @@ class GroupPlan:
         values = [np.asarray(getattr(p.metrics, which), dtype=np.float64) for p in self.plans]
         if not values:
             return {}
-        low = np.min(values, axis=0)
+        low = np.fmin.reduce(values, axis=0)        # NaN where a plan has none (a roughing twin's exact minimum)
         return {s: float(v) for s, v in zip(SURFACES, low)}
 
     def to_dict(self):
@@ -279,6 +284,11 @@ def plan_blisk(geometry, request, *, workers=None, ray_address="", kind=None, st
         if pending:
             count = max(1, min(int(workers or os.cpu_count() or 1), len(pending)))
             extra = {} if max_retries is None else {"max_retries": int(max_retries)}
+            if not request.fixed_design:
+                # a set designer's own workers inside each task: the local cores shared among the groups
+                total = int(workers or os.cpu_count() or 1)
+                request = replace(request, set_workers=max(1, total // len(pending))
+                                  if kind_for(ray_address, kind) == LOCAL else 1)
             executor = make_executor(count, _start_worker, (pickle.dumps(geometry), request), address=ray_address,
                                      kind=kind, **extra)
             described = executor.describe()
@@ -415,14 +425,15 @@ def plan_group_fixed(geometry, channel, request):
 
 
 def design_group_set(geometry, channel, request):
-    """The electrode set of ``channel`` on its own walls (the designer serial here: one task per group)."""
+    """The electrode set of ``channel`` on its own walls (the designer's own local workers: ``set_workers``)."""
     from .electrode_set import SetDesigner            # heavy (the removal proof's modules): the set path only
 
     own = geometry.for_channel(channel)
     field_ = FastChannelField(own.blisk, spacing=FIELD_SPACING, cache_dir=request.cache_dir, cache_key=own.field_key)
     # its cycle options follow the set's tolerance (the designer's own default, as edm-plan plan's set)
     designer = SetDesigner(own, field_, request.options, request.set_options,
-                           field_cache=(request.cache_dir, own.field_key), workers=1, process=request.process,
+                           field_cache=(request.cache_dir, own.field_key), workers=request.set_workers,
+                           process=request.process,
                            process_resolution=request.process_resolution, stock_mesh=request.stock_mesh,
                            process_step=request.process_step, executor="local")
     return designer.design(channel)
