@@ -62,10 +62,22 @@ def test_a_channel_of_its_own_is_the_parts_channel(measured, default_geometry):
         assert np.all(sign * moved > 0.5 * abs(offsets[blade % n, 1 if face == "plus" else 0]))
 
 
+def test_channels_of_nominal_blades_share_the_nominal_files_field(one_channel, default_geometry):
+    """The test file is the default blisk's YAML with an as_measured section: its nominal channels' field is
+    the default blisk's (one field built, not two), its own channels' are their own."""
+    assert one_channel.geometry_id != default_geometry.geometry_id
+    assert one_channel.for_channel(0).field_key == default_geometry.geometry_id
+    assert one_channel.for_channel(CHANNEL).field_key not in (default_geometry.geometry_id, one_channel.geometry_id)
+    from edm_planner.geometry.as_measured import MeasuredBlades
+
+    assert MeasuredBlades.from_dict(one_channel.measured.to_dict()).nominal_field_key == default_geometry.geometry_id
+
+
 def test_channels_of_nominal_blades_share_the_nominal_geometry(one_channel):
     g = one_channel
     nominal = g.for_channel(0)
-    assert nominal.blisk is g.blisk and nominal.measured is None and nominal.field_key == g.geometry_id
+    assert nominal.blisk is g.blisk and nominal.measured is None and nominal.field_key == g.measured.nominal_field_key
+    assert nominal.geometry_id == g.geometry_id                  # plans name the part
     assert g.for_channel(CHANNEL + 2) is nominal and g.for_channel(CHANNEL).measured is None
     # channels CHANNEL - 1 and CHANNEL + 1 each have one measured blade, but their walls are nominal
     for k in (CHANNEL - 1, CHANNEL + 1):

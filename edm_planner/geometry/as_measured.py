@@ -51,17 +51,21 @@ class MeasuredBlades:
         Blade index -> what the blade was read from (for reports).
     scan : dict
         What the whole-blisk scan's reading found (:func:`~.blisk_scan.read_blisk_scan`'s report), None without.
+    nominal_field_key : str
+        The field-cache key of the channels with nominal walls: the id of the same geometry without its
+        ``as_measured`` section, so they share the nominal blisk's field (None: the part's geometry id).
     """
 
     blades: dict
     tolerance: float = 0.005
     sources: dict = None
     scan: dict = None
+    nominal_field_key: str = None
 
     def to_dict(self):
         """Plain data (the geometry topic's ``model_json`` carries it under ``as_measured``)."""
         return {"tolerance": self.tolerance, "sources": {str(k): v for k, v in (self.sources or {}).items()},
-                "scan": self.scan,
+                "scan": self.scan, "nominal_field_key": self.nominal_field_key,
                 "blades": {str(k): {"x": b.x.tolist(), "r": b.r.tolist(), "theta_minus": b.theta_minus.tolist(),
                                     "theta_plus": b.theta_plus.tolist()} for k, b in self.blades.items()}}
 
@@ -73,7 +77,7 @@ class MeasuredBlades:
         blades = {int(k): BladeSections(b["x"], b["r"], b["theta_minus"], b["theta_plus"])
                   for k, b in data["blades"].items()}
         return cls(blades, float(data["tolerance"]), {int(k): v for k, v in data.get("sources", {}).items()},
-                   data.get("scan"))
+                   data.get("scan"), data.get("nominal_field_key"))
 
     def channel_blades(self, channel, blade_count):
         """(blade k, blade k+1) of channel k as given, None where nominal."""

@@ -217,7 +217,8 @@ class LoadedGeometry:
         of that channel alone (``channel`` set, ``measured`` None, the same ``geometry_id``: the part's),
         whose blisk has the channel's own two blades (:func:`~.as_measured.channel_blisk`: its channel
         ``channel`` is the part's) and whose ``field_key`` is its own; where both blades are nominal, the
-        nominal blisk and field key, one geometry shared by all such channels.
+        nominal blisk, one geometry shared by all such channels, whose field is the nominal file's (the field
+        key ``measured.nominal_field_key``: the id of the same file without its ``as_measured`` section).
         """
         if self.measured is None:
             return self
@@ -231,7 +232,8 @@ class LoadedGeometry:
             if blisk is self.blisk:
                 if self._nominal is None:
                     self._nominal = LoadedGeometry(self.geometry_id, blisk, self.design, None, self.source,
-                                                   design_given=self.design_given)
+                                                   design_given=self.design_given,
+                                                   field_key=self.measured.nominal_field_key)
                 self._channels[channel] = self._nominal
             else:
                 self._channels[channel] = LoadedGeometry(
@@ -562,19 +564,29 @@ def build_geometry(doc, files, source=""):
 
 def _loaded(doc, files, source, blisk, **found):
     """The LoadedGeometry of a built blisk (any source): blades as measured, the electrode design, the id."""
+    nominal_files = list(files.hashes)          # what the nominal blisk was read from
     measured, checks = _as_measured(doc.get("as_measured"), blisk, files) if "as_measured" in doc else (None, {})
+    if measured is not None:
+        # the channels with nominal walls share the field of the same file without its as_measured section
+        measured = replace(measured, nominal_field_key=_geometry_digest(
+            {k: v for k, v in doc.items() if k != "as_measured"}, nominal_files))
     design = ElectrodeDesign.from_dict(doc.get("electrode"))
     design_given = doc.get("electrode") is not None
     # a design the file gives is checked now (its errors belong to the load); the default one on first use
     electrodes = design_electrodes(blisk, design) if design_given else None
-    digest = hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode())
-    for fname, h in files.hashes:
-        digest.update(f"\0{fname}\0{h}".encode())
-    geometry = LoadedGeometry(digest.hexdigest(), blisk, design, electrodes, source, design_given=design_given,
+    geometry = LoadedGeometry(_geometry_digest(doc, files.hashes), blisk, design, electrodes, source, design_given=design_given,
                               measured=measured, **found)
     if measured is not None:
         _channels_as_measured(geometry, checks)
     return geometry
+
+
+def _geometry_digest(doc, hashes):
+    """The geometry id: SHA-256 of the parsed document and of every file read for it."""
+    digest = hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode())
+    for fname, h in hashes:
+        digest.update(f"\0{fname}\0{h}".encode())
+    return digest.hexdigest()
 
 
 def _as_measured(spec, blisk, files):

@@ -402,11 +402,14 @@ class TrajectoryPlannerNode(Node):
             prepared.blisk, prepared.design = blisk, design
             prepared.parsed.set()          # stored plans are answered from here on
             electrodes = design_electrodes(blisk, design)
+            measured = MeasuredBlades.from_dict(model.get("as_measured"))
             prepared.geometry = LoadedGeometry(gid, blisk, design, electrodes, source=model.get("source", ""),
-                                               measured=MeasuredBlades.from_dict(model.get("as_measured")))
+                                               measured=measured)
             cache = self.get_parameter("cache_dir").value or CACHE_ROOT
+            # a blisk as measured: this is its nominal channels' field, the nominal file's
+            key = measured.nominal_field_key if measured is not None and measured.nominal_field_key else gid
             prepared.field = FastChannelField(blisk, spacing=float(self.get_parameter("fast_spacing").value),
-                                              cache_dir=cache, cache_key=gid)
+                                              cache_dir=cache, cache_key=key)
             self.get_logger().info(f"geometry {gid[:12]} ready for planning: electrodes "
                                    f"{[e.electrode_id for e in electrodes]}, field bound "
                                    f"{prepared.field.error_bound * 1e3:.2f} um")
