@@ -8,8 +8,8 @@ of their own (the filleted sectors).
 import numpy as np
 
 from edm_planner.bench.step_writer import (R_BORE, R_OUTER, X_RANGE, blade_solid, bspline, cart, count, fuse,
-                                           is_valid, loft, matrix_trsf, ring, rotated, sector_solid, subshapes,
-                                           transformed, wall_deviation, whole_solid, write_step)
+                                           is_valid, loft, loft_rows, matrix_trsf, ring, rotated, sector_solid,
+                                           subshapes, transformed, wall_deviation, whole_solid, write_step)
 from edm_planner.geometry.loader import load_geometry
 
 #: the writer's names the tests use through this module
@@ -94,17 +94,7 @@ def smooth_blade_solid(blisk, section_stride=1, station_stride=2):
     from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge, BRepBuilderAPI_MakeWire
     from OCP.BRepOffsetAPI import BRepOffsetAPI_ThruSections
 
-    b = blisk.blade
-    si = np.unique(np.r_[np.arange(0, b.shape[0], section_stride), b.shape[0] - 1])
-    ci = np.unique(np.r_[np.arange(0, b.shape[1], station_stride), b.shape[1] - 1])
-    x, r, tm, tp = (a[np.ix_(si, ci)] for a in (b.x, b.r, b.theta_minus, b.theta_plus))
-    mean = 0.5 * (tm.mean() + tp.mean())
-    rows = []
-    d = r[0].min() - 0.5                     # planar cap sections, as blade_solid's
-    rows.append((x[0], d / np.cos(tm[0] - mean), d / np.cos(tp[0] - mean), tm[0], tp[0]))
-    rows += [(x[s], r[s], r[s], tm[s], tp[s]) for s in range(len(si))]
-    d = r[-1].max() + 0.5
-    rows.append((x[-1], d / np.cos(tm[-1] - mean), d / np.cos(tp[-1] - mean), tm[-1], tp[-1]))
+    rows = loft_rows(blisk, section_stride, station_stride)
     maker = BRepOffsetAPI_ThruSections(True, False, 1e-6)
     for xs, rm, rp, thm, thp in rows:
         pm, pp = cart(xs, rm, thm), cart(xs, rp, thp)

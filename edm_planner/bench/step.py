@@ -41,7 +41,8 @@ CACHE_DIR = pathlib.Path(CACHE_ROOT) / "step_bench"
 
 
 #: the writer's functions the file is made by (their source is part of the cache key)
-WRITER = (sw.bspline, sw.cart, sw.blade_solid, sw.ring, sw.rotated, sw.transformed, sw.fuse, sw.whole_solid,
+WRITER = (sw.bspline, sw.cart, sw.loft_rows, sw.blade_solid,
+          sw.ring, sw.rotated, sw.transformed, sw.fuse, sw.whole_solid,
           sw.write_step)
 
 

@@ -40,22 +40,29 @@ def cart(x, r, t):
     return np.stack([x, r * np.cos(t), r * np.sin(t)], -1)
 
 
-def blade_solid(blisk, section_stride=3, station_stride=2):
-    """Blade 0 of ``blisk`` as a lofted OCP solid."""
-    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge, BRepBuilderAPI_MakeWire
-    from OCP.BRepOffsetAPI import BRepOffsetAPI_ThruSections
-
+def loft_rows(blisk, section_stride, station_stride):
+    """The sections a blade is lofted through: every ``section_stride``-th section of blade 0 at every
+    ``station_stride``-th station (the last ones kept), between two planar caps (the end sections moved
+    radially onto a plane 0.5 mm beyond them): [(x, r_minus, r_plus, theta_minus, theta_plus)] per section."""
     b = blisk.blade
     si = np.unique(np.r_[np.arange(0, b.shape[0], section_stride), b.shape[0] - 1])
     ci = np.unique(np.r_[np.arange(0, b.shape[1], station_stride), b.shape[1] - 1])
     x, r, tm, tp = (a[np.ix_(si, ci)] for a in (b.x, b.r, b.theta_minus, b.theta_plus))
     mean = 0.5 * (tm.mean() + tp.mean())
-    rows = []
-    d = r[0].min() - 0.5                     # planar cap sections: the end sections moved radially onto a plane
-    rows.append((x[0], d / np.cos(tm[0] - mean), d / np.cos(tp[0] - mean), tm[0], tp[0]))
+    d = r[0].min() - 0.5
+    rows = [(x[0], d / np.cos(tm[0] - mean), d / np.cos(tp[0] - mean), tm[0], tp[0])]
     rows += [(x[s], r[s], r[s], tm[s], tp[s]) for s in range(len(si))]
     d = r[-1].max() + 0.5
     rows.append((x[-1], d / np.cos(tm[-1] - mean), d / np.cos(tp[-1] - mean), tm[-1], tp[-1]))
+    return rows
+
+
+def blade_solid(blisk, section_stride=3, station_stride=2):
+    """Blade 0 of ``blisk`` as a lofted OCP solid."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge, BRepBuilderAPI_MakeWire
+    from OCP.BRepOffsetAPI import BRepOffsetAPI_ThruSections
+
+    rows = loft_rows(blisk, section_stride, station_stride)
     loft = BRepOffsetAPI_ThruSections(True, False, 1e-6)
     for xs, rm, rp, thm, thp in rows:
         pm, pp = cart(xs, rm, thm), cart(xs, rp, thp)
