@@ -183,3 +183,37 @@ def test_edm_plan_geometry_info_reports_the_scan(scanned):
     out = out.getvalue()
     for line in ("scan_blades: 60", "channel_groups: 2", "scan_file: scan.ply"):
         assert line in out, out
+
+
+def test_the_geometry_loader_serves_the_scanned_blisk_over_dds(scanned):
+    """LoadGeometry of the scan's file over DDS: the published model carries every blade as read from the scan,
+    the blades the core reads (so the checker and planner nodes plan on the scanned walls)."""
+    import json
+    import threading
+
+    from edm_planner_msgs.msg import BliskGeometry
+    from edm_planner_msgs.srv import LoadGeometry
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from edm_planner.geometry.as_measured import MeasuredBlades
+    from edm_planner.nodes.geometry_loader import LATCHED, GeometryLoaderNode
+    from ros_harness import InProcessRos
+
+    g, _, _, directory = scanned
+    path = _scan_yaml(directory)
+    with InProcessRos() as ros:
+        ros.add(GeometryLoaderNode(context=ros.context, parameter_overrides=[
+            Parameter("geometry_file", value=""), Parameter("allowed_directories", value=[str(directory)])]))
+        client = ros.add(Node("scan_client", context=ros.context))
+        got, ready = [], threading.Event()
+        client.create_subscription(BliskGeometry, "geometry", lambda m: (got.append(m), ready.set()), LATCHED)
+        res = ros.call(client, LoadGeometry, "load_geometry", LoadGeometry.Request(path=str(path)), timeout=300)
+        assert res.success, res.message
+        assert ready.wait(60), "no geometry published"
+    assert got[-1].summary.geometry_id == g.geometry_id
+    measured = MeasuredBlades.from_dict(json.loads(got[-1].model_json)["as_measured"])
+    assert sorted(measured.blades) == list(range(60)) and set(measured.sources.values()) == {"scan"}
+    assert measured.scan["blades"] == 60 and measured.nominal_field_key == g.measured.nominal_field_key
+    for k in (0, CHANNEL, CHANNEL + 1):
+        np.testing.assert_array_equal(measured.blades[k].theta_plus, g.measured.blades[k].theta_plus)
