@@ -1,6 +1,7 @@
 """The material-removal simulation against closed forms, brute force and the default blisk."""
 
 import json
+import pickle
 from pathlib import Path
 
 import igl
@@ -55,6 +56,22 @@ def test_signed_distance_equals_libigl_pseudonormal(monkeypatch):
         ref = igl.signed_distance(points, np.asarray(mesh.vertices), np.asarray(mesh.faces, dtype=np.int64))[0]
         np.testing.assert_allclose(ours, ref, atol=EXACT)
         assert np.array_equal(ours < 0, mesh.contains(points))
+
+
+def test_the_kept_tree_gives_libigls_per_call_distances_and_survives_a_pickle():
+    """MeshDistance keeps one libigl AABB tree per mesh: the unsigned distances equal ``igl.signed_distance``'s
+    (which builds its tree on every call) bit for bit, call after call, and after a pickle (a worker process
+    rebuilds the tree, which does not pickle)."""
+    rng = np.random.default_rng(1)
+    mesh = trimesh.creation.icosphere(3)
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces, dtype=np.int64)
+    dist = MeshDistance(V, F)
+    for _ in range(3):
+        points = rng.uniform(-2, 2, (500, 3))
+        unsigned = igl.signed_distance(points, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_UNSIGNED)[0]
+        assert np.abs(dist(points)).tobytes() == np.asarray(unsigned, dtype=np.float64).ravel().tobytes()
+    again = pickle.loads(pickle.dumps(dist))
+    assert again(points).tobytes() == dist(points).tobytes()
 
 
 def test_box_in_box_channel_at_one_pose():
