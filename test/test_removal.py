@@ -58,20 +58,45 @@ def test_signed_distance_equals_libigl_pseudonormal(monkeypatch):
         assert np.array_equal(ours < 0, mesh.contains(points))
 
 
-def test_the_kept_tree_gives_libigls_per_call_distances_and_survives_a_pickle():
-    """MeshDistance keeps one libigl AABB tree per mesh: the unsigned distances equal ``igl.signed_distance``'s
-    (which builds its tree on every call) bit for bit, call after call, and after a pickle (a worker process
-    rebuilds the tree, which does not pickle)."""
+def _libigl_unsigned(points, V, F):
+    return np.asarray(igl.signed_distance(points, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_UNSIGNED)[0],
+                      dtype=np.float64).ravel()
+
+
+def test_the_tree_gives_libigls_distances_bit_for_bit_and_survives_a_pickle():
+    """MeshDistance's own bounding-box tree (written here: 1.8x faster than libigl's on one thread) finds the
+    distances of libigl's, bit for bit: far, near, at vertices, inside; on a sphere, a capsule and a twisted,
+    finely meshed blade-like slab (long thin triangles, many near ties). Pickled (to a worker), the same."""
     rng = np.random.default_rng(1)
-    mesh = trimesh.creation.icosphere(3)
-    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces, dtype=np.int64)
-    dist = MeshDistance(V, F)
-    for _ in range(3):
-        points = rng.uniform(-2, 2, (500, 3))
-        unsigned = igl.signed_distance(points, V, F, sign_type=igl.SIGNED_DISTANCE_TYPE_UNSIGNED)[0]
-        assert np.abs(dist(points)).tobytes() == np.asarray(unsigned, dtype=np.float64).ravel().tobytes()
-    again = pickle.loads(pickle.dumps(dist))
-    assert again(points).tobytes() == dist(points).tobytes()
+    slab = trimesh.creation.box((30.0, 6.0, 0.8))
+    slab = slab.subdivide_to_size(0.4)
+    twist = np.radians(25.0) * slab.vertices[:, 0] / 30.0                    # about the X axis along the slab
+    v = slab.vertices.copy()
+    v[:, 1], v[:, 2] = (np.cos(twist) * slab.vertices[:, 1] - np.sin(twist) * slab.vertices[:, 2],
+                        np.sin(twist) * slab.vertices[:, 1] + np.cos(twist) * slab.vertices[:, 2])
+    meshes = [trimesh.creation.icosphere(3), trimesh.creation.capsule(2.0, 0.5), trimesh.Trimesh(v, slab.faces)]
+    for mesh in meshes:
+        V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces, dtype=np.int64)
+        lo, hi = V.min(axis=0) - 1.0, V.max(axis=0) + 1.0
+        points = np.vstack([rng.uniform(lo, hi, (2000, 3)),
+                            V[rng.integers(0, len(V), 300)],                              # on vertices
+                            mesh.sample(2000) + rng.normal(0, 0.1, (2000, 3)),          # near, both sides
+                            rng.uniform(lo - 40.0, hi + 40.0, (300, 3))])               # far
+        dist = MeshDistance(V, F)
+        ours = dist(points)
+        assert np.abs(ours).tobytes() == _libigl_unsigned(points, V, F).tobytes()
+        again = pickle.loads(pickle.dumps(dist))
+        assert again(points).tobytes() == ours.tobytes()
+    assert dist(np.zeros((0, 3))).shape == (0,)
+
+
+def test_a_point_that_is_not_finite_has_no_distance_and_an_empty_mesh_is_refused():
+    mesh = trimesh.creation.icosphere(2)
+    dist = MeshDistance(mesh.vertices, mesh.faces)
+    out = dist(np.array([[np.nan, 0.0, 0.0], [0.0, 0.0, 3.0], [np.inf, 1.0, 1.0]]))
+    assert np.isnan(out[0]) and np.isnan(out[2]) and out[1] == pytest.approx(2.0, abs=0.02)
+    with pytest.raises(ValueError, match="faces"):
+        MeshDistance(mesh.vertices, np.zeros((0, 3), dtype=np.int64))
 
 
 def test_box_in_box_channel_at_one_pose():

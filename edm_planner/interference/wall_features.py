@@ -246,50 +246,56 @@ def _bin_triangles(a, b, dims):
 
 
 @numba.njit(cache=True, inline="always")
-def _point_triangle_sq(px, py, pz, V, f):
-    """Squared distance from p to triangle f (Ericson, Real-Time Collision Detection 5.1.5)."""
-    ax, ay, az = V[f[0], 0], V[f[0], 1], V[f[0], 2]
-    bx, by, bz = V[f[1], 0], V[f[1], 1], V[f[1], 2]
-    cx, cy, cz = V[f[2], 0], V[f[2], 1], V[f[2], 2]
+def closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    """The point of triangle (a, b, c) closest to p (Ericson, Real-Time Collision Detection 5.1.5)."""
     abx, aby, abz = bx - ax, by - ay, bz - az
     acx, acy, acz = cx - ax, cy - ay, cz - az
     apx, apy, apz = px - ax, py - ay, pz - az
     d1 = abx * apx + aby * apy + abz * apz
     d2 = acx * apx + acy * apy + acz * apz
     if d1 <= 0.0 and d2 <= 0.0:
-        return apx * apx + apy * apy + apz * apz
+        return ax, ay, az
     bpx, bpy, bpz = px - bx, py - by, pz - bz
     d3 = abx * bpx + aby * bpy + abz * bpz
     d4 = acx * bpx + acy * bpy + acz * bpz
     if d3 >= 0.0 and d4 <= d3:
-        return bpx * bpx + bpy * bpy + bpz * bpz
+        return bx, by, bz
     vc = d1 * d4 - d3 * d2
     if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
         v = d1 / (d1 - d3)
-        qx, qy, qz = ax + v * abx - px, ay + v * aby - py, az + v * abz - pz
-        return qx * qx + qy * qy + qz * qz
+        return ax + v * abx, ay + v * aby, az + v * abz
     cpx, cpy, cpz = px - cx, py - cy, pz - cz
     d5 = abx * cpx + aby * cpy + abz * cpz
     d6 = acx * cpx + acy * cpy + acz * cpz
     if d6 >= 0.0 and d5 <= d6:
-        return cpx * cpx + cpy * cpy + cpz * cpz
+        return cx, cy, cz
     vb = d5 * d2 - d1 * d6
     if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
         w = d2 / (d2 - d6)
-        qx, qy, qz = ax + w * acx - px, ay + w * acy - py, az + w * acz - pz
-        return qx * qx + qy * qy + qz * qz
+        return ax + w * acx, ay + w * acy, az + w * acz
     va = d3 * d6 - d5 * d4
     if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
         w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        qx = bx + w * (cx - bx) - px
-        qy = by + w * (cy - by) - py
-        qz = bz + w * (cz - bz) - pz
-        return qx * qx + qy * qy + qz * qz
+        return bx + w * (cx - bx), by + w * (cy - by), bz + w * (cz - bz)
     den = 1.0 / (va + vb + vc)
     v = vb * den
     w = vc * den
-    qx, qy, qz = ax + abx * v + acx * w - px, ay + aby * v + acy * w - py, az + abz * v + acz * w - pz
-    return qx * qx + qy * qy + qz * qz
+    return ax + abx * v + acx * w, ay + aby * v + acy * w, az + abz * v + acz * w
+
+
+@numba.njit(cache=True, inline="always")
+def point_triangle_sq(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    """Squared distance from p to triangle (a, b, c): |closest - p|^2 (``closest_on_triangle``)."""
+    x, y, z = closest_on_triangle(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
+    dx, dy, dz = x - px, y - py, z - pz
+    return dx * dx + dy * dy + dz * dz
+
+
+@numba.njit(cache=True, inline="always")
+def _point_triangle_sq(px, py, pz, V, f):
+    """Squared distance from p to triangle f of the mesh V."""
+    return point_triangle_sq(px, py, pz, V[f[0], 0], V[f[0], 1], V[f[0], 2], V[f[1], 0], V[f[1], 1], V[f[1], 2],
+                             V[f[2], 0], V[f[2], 1], V[f[2], 2])
 
 
 @numba.njit(cache=True, inline="always")

@@ -61,7 +61,7 @@ import trimesh
 from scipy.spatial import ConvexHull
 
 from ..errors import EdmError, ErrorCode
-from ..machining.mesh_distance import MeshDistance  # exact: libigl distance + pseudonormal sign
+from ..machining.mesh_distance import MeshDistance  # exact: nearest triangle + pseudonormal sign
 
 _log = logging.getLogger(__name__)
 
