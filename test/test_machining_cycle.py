@@ -196,6 +196,31 @@ def test_candidates_in_order_of_electrode_count():
     assert len(candidate_sets(g.blisk, g.design, SetOptions(max_electrodes=3))) == 4
 
 
+def test_the_pieces_sized_ahead_are_those_of_candidates_certain_to_be_tried():
+    """While a candidate's pieces are sized, an idle worker sizes ahead only pieces of later candidates with as
+    many electrodes: those are tried whatever the current one gives (only an accepted set with fewer electrodes
+    passes a candidate over); a candidate with more electrodes may never be tried and is not started."""
+    from edm_planner.machining.electrode_set import Candidate
+
+    g = load_geometry(CONFIG / "default_blisk.yaml")
+    designer = SetDesigner(g, None, workers=1)
+    designer._cands = [Candidate(name, [Piece(lab, eid, d) for lab, eid, d in pieces])
+                       for name, pieces in candidate_sets(g.blisk, g.design, SetOptions())]
+    names = [c.name for c in designer._cands]
+    at = names.index
+    ahead = designer._certain_after
+    assert ahead(designer._cands[0], 0) == []                              # one electrode: none has one
+    assert ahead(designer._cands[1], at("front/rear")) == [(at("left/right"), 0), (at("left/right"), 1)]
+    assert ahead(designer._cands[2], at("left/right")) == []
+    assert ahead(designer._cands[3], at("three axial pieces")) == []       # the next ones have 4 and 5
+    four = at("front/rear x left/right")
+    assert ahead(designer._cands[four], four) == [(at("four axial pieces"), j) for j in range(4)]
+    designer._ahead[(at("four axial pieces"), 0)] = None                   # submitted already: not twice
+    assert ahead(designer._cands[four], four) == [(at("four axial pieces"), j) for j in range(1, 4)]
+    # a candidate evaluated on its own, not the design's: nothing ahead
+    assert ahead(Candidate("front/rear", designer._cands[1].pieces), at("front/rear")) == []
+
+
 def test_the_set_designer_reports_why_a_candidate_fails(rear):
     """The primitive electrode (one piece) is infeasible on the default blisk: rejected with the planner's reason."""
     g, field, electrode, plan, builder, cycle = rear

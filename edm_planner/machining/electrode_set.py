@@ -368,6 +368,9 @@ class SetDesigner:
         self._fraction = 0.0             # the last fraction reported (reports never go back)
         self._cancel = threading.Event()
         self._reports = None             # the workers' SetProgress records (a multiprocessing or a Ray queue)
+        self._cands = []                 # the candidates of the design under way
+        self._ahead = {}                 # (candidate, piece) -> future: pieces sized ahead of their candidate
+        self._stashed = []               # their workers' records, reported when their candidate's turn comes
         b = self.blisk
         self.h_max = 0.9 * float(np.min(b.pitch - (b.blade.theta_plus - b.blade.theta_minus)))
         self.r_start = self.options.radial_start * b.channel_height_range[0]
@@ -629,6 +632,7 @@ class SetDesigner:
         self.base = replace(self.base, axial_range=self.closed_channel_range())
         cands = [Candidate(name, [Piece(lab, eid, d) for lab, eid, d in pieces])
                  for name, pieces in candidate_sets(self.blisk, self.base, self.options)]
+        self._cands, self._ahead, self._stashed = cands, {}, []
         accepted_count = None
         for i, cand in enumerate(cands):
             if accepted_count is not None and cand.electrode_count > accepted_count:
@@ -686,7 +690,12 @@ class SetDesigner:
         return result
 
     def _size_all(self, cand, index, count):
-        """Size every piece of a candidate: in the worker processes when there are several, else here."""
+        """Size every piece of a candidate: in the worker processes when there are several, else here.
+
+        A worker this candidate no longer needs (its piece sized while others still run) sizes a piece of a
+        later candidate that is certain to be tried (:meth:`_certain_after`) instead of waiting: the same
+        sizing, in a core that would idle. The pieces, and so the set, are the same as one at a time.
+        """
         pool = self._workers_pool() if len(cand.pieces) > 1 else None
         if pool is None:
             done = []
@@ -696,20 +705,26 @@ class SetDesigner:
             return done
         self._report(index / count, f"{cand.name}: sizing {len(cand.pieces)} electrodes in "
                                      f"{pool.describe()}")
-        remaining = self.options.time_budget - self._elapsed()
         n = len(cand.pieces)
-        pending = {j: pool.submit(_size_in_worker, piece, remaining, (index, count, j, n), cand.name)
-                   for j, piece in enumerate(cand.pieces)}
+        pending = {j: self._ahead.pop((index, j), None) or self._submit_piece(pool, cand, index, count, j)
+                   for j in range(n)}
+        ahead = self._certain_after(cand, index)
+        records, self._stashed = ([r for r in self._stashed if r.candidate_index == index],
+                                  [r for r in self._stashed if r.candidate_index != index])
         done, shares = [None] * n, [0.0] * n          # per piece: sized?, share of its sizing done
         while pending:
             finished, _ = wait(list(pending.values()), timeout=0.25, return_when=FIRST_COMPLETED)
             self._check_cancel()
-            for record in drain(self._reports):       # the workers' steps, each reported here
+            for record in records + drain(self._reports):       # the workers' steps, each reported here
+                if record.candidate_index != index:             # a piece sized ahead: at its candidate's turn
+                    self._stashed.append(record)
+                    continue
                 shares[record.piece_index] = max(shares[record.piece_index], min(record.sizing_step / 12.0, 0.95))
                 self._report((index + 0.9 * sum(shares) / n) / count, record.message, piece=record.piece,
                              piece_index=record.piece_index, sizing_parameter=record.sizing_parameter,
                              sizing_step=record.sizing_step, radial_reduction=record.radial_reduction,
                              circumferential_reduction=record.circumferential_reduction)
+            records = []
             for j in [j for j, f in pending.items() if f in finished]:
                 future = pending.pop(j)
                 ok, sized = future.result()
@@ -718,7 +733,27 @@ class SetDesigner:
                 self._report((index + 0.9 * sum(shares) / n) / count,
                              f"{cand.name}: {sized.label} electrode {'sized' if ok else 'has no certified path'}"
                              + (f" (on node {node[:8]})" if node else ""), piece=sized.label, piece_index=j)
+            busy = len(pending) + sum(not f.done() for f in self._ahead.values())
+            while pending and ahead and busy < self.workers:
+                i, j = ahead.pop(0)
+                self._ahead[(i, j)] = self._submit_piece(pool, self._cands[i], i, count, j)
+                busy += 1
         return done
+
+    def _submit_piece(self, pool, cand, index, count, j):
+        return pool.submit(_size_in_worker, cand.pieces[j], self.options.time_budget - self._elapsed(),
+                           (index, count, j, len(cand.pieces)), cand.name)
+
+    def _certain_after(self, cand, index):
+        """(candidate, piece) of the later candidates sized in the workers that are certain to be tried once
+        candidate ``index`` is: those with as many electrodes (a candidate is passed over only for an accepted
+        one with fewer), not yet submitted."""
+        if index >= len(self._cands) or self._cands[index] is not cand:      # a candidate evaluated on its own
+            return []
+        count = cand.electrode_count
+        return [(i, j) for i in range(index + 1, len(self._cands))
+                if self._cands[i].electrode_count == count and len(self._cands[i].pieces) > 1
+                for j in range(len(self._cands[i].pieces)) if (i, j) not in self._ahead]
 
     def _workers_pool(self):
         """The executor of the tasks (:mod:`.executors`), made on first use; None: everything runs here.
