@@ -226,3 +226,31 @@ def test_centerline_reference_follows_the_channel(default, plan5):
     assert min(p.metrics.clearance_lower_bound) >= 0.02 and vertex_steps(p).max() <= 0.05 + 1e-9
     # stepping along the curved centerline instead of X: a different path out of the same channel
     assert not np.allclose(p.samples[0], plan5.samples[0], atol=0.1)
+
+
+def test_a_time_budget_does_not_count_numbas_compilation():
+    """The budget clock stands still while numba compiles (a cold cache must not change a plan), and runs
+    with the process otherwise. A function made here compiles on its first call (it is not cached)."""
+    import time
+
+    import numba
+
+    from edm_planner.budget import budget_clock, compile_seconds
+
+    @numba.njit(cache=False)
+    def fresh(x):
+        s = 0.0
+        for i in range(10):
+            s += np.sin(x * i) * np.cos(x + i)
+        return s
+
+    wall, budget, compiled = time.perf_counter(), budget_clock(), compile_seconds()
+    fresh(1.0)                                                     # compiles
+    d_wall, d_budget, d_compiled = time.perf_counter() - wall, budget_clock() - budget, compile_seconds() - compiled
+    assert d_compiled > 0.5 * d_wall > 0, f"the first call is mostly compilation: {d_compiled} of {d_wall} s"
+    assert d_budget == pytest.approx(d_wall - d_compiled, abs=2e-3)       # three clock reads, microseconds apart
+    wall, budget, compiled = time.perf_counter(), budget_clock(), compile_seconds()
+    while time.perf_counter() - wall < 0.05:                        # work, no compilation
+        fresh(2.0)
+    d_wall, d_budget = time.perf_counter() - wall, budget_clock() - budget
+    assert compile_seconds() == compiled and d_budget == pytest.approx(d_wall, abs=2e-3)

@@ -21,12 +21,12 @@ import functools
 import hashlib
 import json
 import logging
-import time
 from dataclasses import asdict, replace
 
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from ..budget import budget_clock
 from ..errors import EdmError, ErrorCode
 from ..geometry.centerline import channel_centerline
 from ..geometry.electrode import design_electrodes
@@ -146,7 +146,7 @@ def plan_channel(geometry, channel=0, electrode_id="", options=None, field=None,
     EdmError
         INVALID_REQUEST for a bad channel, UNKNOWN_ID for an unknown electrode.
     """
-    t0 = time.perf_counter()
+    t0 = budget_clock()
     options = options or PlanOptions()
     if not (isinstance(channel, (int, np.integer)) and 0 <= channel < geometry.blisk.blade_count):
         raise EdmError(ErrorCode.INVALID_REQUEST,
@@ -167,7 +167,7 @@ def plan_channel(geometry, channel=0, electrode_id="", options=None, field=None,
         plan = _size(geometry, channel, electrode.electrode_id, options, field, progress, base_design, t0)
     else:
         # planning time: search, fit and certification (the field and the electrode exist by now)
-        plan = _plan_one(geometry, channel, electrode, options, field, progress, base_design, time.perf_counter())
+        plan = _plan_one(geometry, channel, electrode, options, field, progress, base_design, budget_clock())
     if exact_clearance and plan.success:
         _report(progress, "exact", 0.0, plan.metrics.node_count, 0.0, "exact clearance over the plan's samples")
         add_exact_clearance(plan, blisk, field)
@@ -223,7 +223,7 @@ def _plan_one(geometry, channel, electrode, options, field, progress, design, t0
     axis_names = AXIS_NAMES[so.axes]
     budget = so.time_budget if time_budget is None else time_budget
     pid = plan_id_for(geometry.geometry_id, channel, electrode.electrode_id, options, design)
-    search_opts = replace(so, time_budget=max(budget - (time.perf_counter() - t0), 1e-3))
+    search_opts = replace(so, time_budget=max(budget - (budget_clock() - t0), 1e-3))
     centerline = channel_centerline(blisk) if so.reference == "centerline" else None
     search = ExitSearch(blisk, electrode, field, search_opts, centerline=centerline)
 
@@ -236,7 +236,7 @@ def _plan_one(geometry, channel, electrode, options, field, progress, design, t0
                           objfun1=float(res.objfun1), objfun2=float(res.objfun2), node_count=len(res.states))
 
     def failed(code, message, **extra):
-        metrics.planning_time = time.perf_counter() - t0
+        metrics.planning_time = budget_clock() - t0
         empty = np.zeros((0, len(axis_names)))
         fields = dict(furthest_node=max(len(res.states) - 1, 0), furthest_reference=float(res.furthest_reference),
                       blocking_surface=res.blocking_surface,
@@ -259,7 +259,7 @@ def _plan_one(geometry, channel, electrode, options, field, progress, design, t0
                               faces=electrode.mesh.faces)
     cert = None
     for i, level in enumerate(SMOOTHING_LEVELS):
-        if time.perf_counter() - t0 > budget:
+        if budget_clock() - t0 > budget:
             return failed(ErrorCode.TIMEOUT, f"time budget of {budget:g} s used up while certifying the path")
         _report(progress, "certify", i / len(SMOOTHING_LEVELS), len(nodes), params[-1],
                 f"smoothing level {level:g}")
@@ -289,7 +289,7 @@ def _plan_one(geometry, channel, electrode, options, field, progress, design, t0
     metrics.clearance_lower_bound = tuple(float(v) for v in cert.lower_bound)
     metrics.smoothness, metrics.sharp_points = sm, sharp
     metrics.certified = True
-    metrics.planning_time = time.perf_counter() - t0
+    metrics.planning_time = budget_clock() - t0
     _report(progress, "certify", 1.0, len(nodes), params[-1], "certified")
     return Plan(pid, ErrorCode.SUCCESS,
                 f"certified path of {len(samples)} samples, {len(nodes)} nodes, exit "
@@ -308,7 +308,7 @@ def _size(geometry, channel, electrode_id, options, field, progress, design, t0)
     def attempt(h):
         d = replace(design, circumferential_reduction=float(h))
         electrode = _pick(design_electrodes(blisk, d), electrode_id)
-        _report(progress, "sizing", min((time.perf_counter() - t0) / budget, 0.99), 0, 0.0,
+        _report(progress, "sizing", min((budget_clock() - t0) / budget, 0.99), 0, 0.0,
                 f"trying h = {h:.4f} rad")
         plan = _plan_one(geometry, channel, electrode, plain, field, None, d, t0, time_budget=budget)
         tried[h] = plan
@@ -329,7 +329,7 @@ def _size(geometry, channel, electrode_id, options, field, progress, design, t0)
         p0 = attempt(0.0)
         if p0.success:
             best, hi = p0, 0.0
-    while hi - lo > options.sizing_tolerance and time.perf_counter() - t0 < budget:
+    while hi - lo > options.sizing_tolerance and budget_clock() - t0 < budget:
         mid = 0.5 * (lo + hi)
         p = attempt(mid)
         if p.success:
@@ -338,7 +338,7 @@ def _size(geometry, channel, electrode_id, options, field, progress, design, t0)
             break
         else:
             lo = mid
-    best.metrics.planning_time = time.perf_counter() - t0
+    best.metrics.planning_time = budget_clock() - t0
     best.message = (f"smallest circumferential reduction with a certified path: {hi:.4f} rad "
                     f"(infeasible at {lo:.4f} rad, {len(tried)} plans); " + best.message)
     _report(progress, "sizing", 1.0, best.metrics.node_count, 0.0, best.message)
