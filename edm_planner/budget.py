@@ -13,54 +13,27 @@ Only ``numba:compile`` events count: compilation proper, which numba
 broadcasts (``numba.core.event``). Loading a cached kernel, about 0.08 s, is
 not a compile event and still counts. The clock is per process. A
 compilation in one thread is taken off the budgets of all the process's
-threads, since numba compiles under one global lock.
+threads, since numba compiles under one global lock, once it has ended
+(another thread's clock runs on while it compiles, then steps back).
 
 Plain Python and numba; no rclpy. Units: s.
 """
 
-import threading
 import time
 
 from numba.core import event
 
-
-class _CompileTime(event.Listener):
-    """Total seconds of the process's outermost ``numba:compile`` events (nested compiles counted once)."""
-
-    def __init__(self):
-        self._lock = threading.Lock()
-        self._depth = 0
-        self._started = 0.0
-        self.total = 0.0
-
-    def on_start(self, event):
-        with self._lock:
-            if self._depth == 0:
-                self._started = time.perf_counter()
-            self._depth += 1
-
-    def on_end(self, event):
-        with self._lock:
-            self._depth -= 1
-            if self._depth == 0:
-                self.total += time.perf_counter() - self._started
-
-    def now(self):
-        """Seconds compiled so far, the one under way included."""
-        with self._lock:
-            running = time.perf_counter() - self._started if self._depth else 0.0
-            return self.total + running
-
-
-_COMPILING = _CompileTime()
+# numba's own accumulating timer of the outermost events; compile events run one at a time under numba's
+# global compiler lock, so it needs no lock of ours
+_COMPILING = event.TimingListener()
 event.register("numba:compile", _COMPILING)
+
+
+def compile_seconds():
+    """Seconds numba has spent compiling in this process so far, up to the last compile that ended [s]."""
+    return _COMPILING.duration if _COMPILING.done else 0.0
 
 
 def budget_clock():
     """``time.perf_counter()`` less the seconds numba has spent compiling in this process [s]."""
-    return time.perf_counter() - _COMPILING.now()
-
-
-def compile_seconds():
-    """Seconds numba has spent compiling in this process so far [s]."""
-    return _COMPILING.now()
+    return time.perf_counter() - compile_seconds()

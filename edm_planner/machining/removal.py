@@ -27,7 +27,7 @@ The simulation is split by concern:
 The stock maps (``plot_stock_maps``, ``stock_vertex_colours``) are drawn by the records layer,
 :mod:`edm_planner.records.stock_maps`; their old names here are deprecated aliases.
 
-Plain numpy/scipy/trimesh/libigl; no rclpy. Units: mm, rad, s.
+Plain numpy/scipy/trimesh/numba; no rclpy. Units: mm, rad, s.
 """
 
 import time

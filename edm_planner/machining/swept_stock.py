@@ -37,7 +37,7 @@ point's minimum must be evaluated, so a sweep that keeps a wall at nearly
 the same distance over many poses (sliding along it) costs one query per
 such pair.
 
-Plain numpy/libigl/numba; no rclpy. Units: mm, rad, s.
+Plain numpy/numba; no rclpy. Units: mm, rad, s.
 """
 
 import time
@@ -195,7 +195,7 @@ def stock_at_points(points, sweeps, gap, stats=None):
         Discharge gap [mm], one for all sweeps or one per sweep.
     stats : dict, optional
         Filled with 'pairs' (n x total poses), 'queries' (distance queries made),
-        'calls' (libigl calls) and 'elapsed' [s].
+        'calls' (distance calls) and 'elapsed' [s].
 
     Returns
     -------
