@@ -18,6 +18,7 @@ import pytest
 from edm_planner.geometry.electrode import design_electrodes
 from edm_planner.geometry.frames import rotation_about_x
 from edm_planner.machining.electrode_set import SetDesigner, SetOptions, acceptance
+from edm_planner.machining.corner_rounding import CORNERS, corner_lines
 from edm_planner.machining.removal import corner_rounding_stock, simulate_removal, stock_at_points, wall_samples
 
 TOL = 0.02
@@ -151,3 +152,29 @@ def test_the_independent_corner_rounding_is_what_the_ideal_electrode_leaves(setu
         # the rounding is confined to the corners: zero farther than its reach (<= 0.3 mm here) from them
         assert ours.max() > 0.04, f"{name}: the corners keep at least g (sqrt 2 - 1) = 0.041 mm (acute corners)"
         assert ours.max() < 0.07, f"{name}: no corner of the default blisk is sharper than 70 deg (<= 0.07 mm)"
+
+
+def test_the_corner_rounding_is_the_closed_form_at_every_sample_from_its_nearest_segment_of_the_corner_line(setup):
+    # brute force: every sample against every segment of the four corner lines; the k-d search only finds
+    # the samples within reach (the far ones, most of a wall, have no rounding stock)
+    blisk, _, samples, independent, g = setup
+    lines = corner_lines(blisk, g)
+    for name, smp in samples.items():
+        every = np.arange(0, len(smp.points), 8)                   # every 8th sample: a few seconds
+        expected = np.zeros(len(every))
+        for key in CORNERS:
+            if name not in key:
+                continue
+            pts, reach, _ = lines[key]
+            a, seg = pts[:-1], np.diff(pts, axis=0)
+            for chunk in np.array_split(np.arange(len(every)), max(1, len(every) // 500)):
+                p = smp.points[every[chunk]]
+                u = np.clip(np.einsum("nsj,sj->ns", p[:, None] - a[None], seg) / np.einsum("sj,sj->s", seg, seg),
+                            0.0, 1.0)
+                d = np.linalg.norm(p[:, None] - (a[None] + u[..., None] * seg[None]), axis=2)
+                s = d.min(axis=1)
+                t = reach[np.linalg.norm(p[:, None] - pts[None], axis=2).argmin(axis=1)]   # the nearest point's
+                expected[chunk] = np.maximum(expected[chunk], np.where(s < t, np.sqrt((t - s) ** 2 + g * g) - g, 0.0))
+        expected = np.where(smp.valid[every], expected, 0.0)
+        assert (expected > 0).sum() > 20                            # the corners' strips are sampled
+        np.testing.assert_allclose(independent[name][every], expected, rtol=0, atol=1e-12)

@@ -11,6 +11,7 @@ import trimesh
 
 from edm_planner.geometry.frames import cartesian_to_cylindrical, rotation_about_x
 from edm_planner.machining.removal import MeshDistance, Sweep, simulate_removal, stock_at_points, wall_samples
+from edm_planner.machining.swept_stock import _clusters, _inverse, _PoseTree
 from edm_planner.records.stock_maps import plot_stock_maps, stock_vertex_colours
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
@@ -205,6 +206,28 @@ def test_pruned_minimum_equals_brute_force(seed):
         sd = igl.signed_distance(q, sw.vertices, sw.faces.astype(np.int64))[0]
         np.testing.assert_allclose(sd - gaps[j], stock[m], atol=EXACT)
     assert stats["queries"] < stats["pairs"]
+
+
+def test_each_part_of_the_points_bounds_its_travel_from_its_own_centre():
+    # the pruning's bound, per pose-tree node and part: ||R_s^T - R_a^T|| |p - c_k| + |travel of c_k| must
+    # cover every point's true travel between the node's middle pose (and its parent's) and each of its poses
+    rng = np.random.default_rng(5)
+    sweep = random_sweep(rng, box(1.0, 0.5, 0.3), 40)
+    points = rng.uniform(-30.0, 30.0, (3000, 3))
+    centres, part = _clusters(points)
+    assert len(centres) == 64 and np.bincount(part).min() >= 3000 // 64
+    inv_r, inv_t = _inverse(sweep.poses)
+    tree = _PoseTree(inv_r, inv_t, centres, 0, len(sweep.poses) - 2)
+    d = np.linalg.norm(points - centres[part], axis=1)
+    assert d.max() < 0.5 * np.linalg.norm(points - points.mean(axis=0), axis=1).max()   # nearer than one centre
+    for node in range(len(tree.lo)):
+        for anchor, alpha, beta in ((tree.mid[node], tree.alpha, tree.beta),
+                                    (tree.mid[max(tree.parent[node], 0)], tree.alpha_par, tree.beta_par)):
+            q_a = points @ inv_r[anchor].T + inv_t[anchor]
+            bound = alpha[node] * d + beta[node, part]
+            for s in range(tree.lo[node], tree.hi[node] + 1):
+                travel = np.linalg.norm(points @ inv_r[s].T + inv_t[s] - q_a, axis=1)
+                assert np.all(travel <= bound + 1e-9)
 
 
 # -- the default blisk --------------------------------------------------------------

@@ -290,11 +290,69 @@ def project_edge(cp, tu, tv, px, py, pz, u, v, work, tol, max_iter):
 
 
 @numba.njit(cache=True)
+def _meridional_step(ev, x0, r0):
+    """Newton step (du, dv) towards (x(u, v), r(u, v)) = (x0, r0) from ``ev``, damped to 0.25, and the residual."""
+    r = math.hypot(ev[0, 1], ev[0, 2])
+    r_u = (ev[0, 1] * ev[1, 1] + ev[0, 2] * ev[1, 2]) / r
+    r_v = (ev[0, 1] * ev[2, 1] + ev[0, 2] * ev[2, 2]) / r
+    res0 = ev[0, 0] - x0
+    res1 = r - r0
+    j00, j01, j10, j11 = ev[1, 0], ev[2, 0], r_u, r_v
+    det = j00 * j11 - j01 * j10
+    if abs(det) < 1e-300:
+        det = 1e-300
+    du = (j11 * res0 - j01 * res1) / det
+    dv = (-j10 * res0 + j00 * res1) / det
+    big = max(abs(du), abs(dv))
+    if big > 0.25:
+        du *= 0.25 / big
+        dv *= 0.25 / big
+    return du, dv, math.hypot(res0, res1)
+
+
+@numba.njit(cache=True)
+def _uv_at_descending(cp, tu, tv, x0, r0, u, v, work):
+    """``uv_at``'s Newton with every step halved until the residual falls: (u, v, residual).
+
+    Plain Newton can cycle where x(u) bends sharply (a faceted blade's
+    trailing-edge rounding: u = 1 and u = 0.97 step onto each other for
+    ever); a step that must lower the residual cannot.
+    """
+    ev = work[2]
+    surface_eval(cp, tu, tv, u, v, work)
+    du, dv, f = _meridional_step(ev, x0, r0)
+    for _ in range(60):
+        t = 1.0
+        moved = False
+        for _ in range(20):
+            un = min(max(u - t * du, 0.0), 1.0)
+            vn = min(max(v - t * dv, 0.0), 1.0)
+            if un == u and vn == v:
+                break
+            surface_eval(cp, tu, tv, un, vn, work)
+            dun, dvn, fn = _meridional_step(ev, x0, r0)
+            if fn < f:
+                moved = True
+                break
+            t *= 0.5
+        if not moved:
+            break
+        step = max(abs(un - u), abs(vn - v))
+        u, v, du, dv, f = un, vn, dun, dvn, fn
+        if step < 1e-11 or f < 1e-12:
+            break
+    return u, v, f
+
+
+@numba.njit(cache=True)
 def uv_at(cp, tu, tv, x0, r0, u, v, work):
     """Face parameters at a meridional position, as ``BladeFace.uv_at`` (numba).
 
     Newton on ``(x(u, v), r(u, v)) = (x0, r0)`` with steps damped to 0.25 and
-    clipped to [0, 1].
+    clipped to [0, 1]. Where it ends off the position (outside, or a Newton
+    cycle), a descending Newton from the same start decides
+    (``_uv_at_descending``); the first answer stands unless that one lands on
+    the position, so every point plain Newton finds keeps its bits.
 
     Returns
     -------
@@ -305,34 +363,27 @@ def uv_at(cp, tu, tv, x0, r0, u, v, work):
         Angle of the face point [rad].
     """
     ev = work[2]
+    u_start, v_start = u, v
+    cycled = True
     for _ in range(30):
         surface_eval(cp, tu, tv, u, v, work)
-        r = math.hypot(ev[0, 1], ev[0, 2])
-        r_u = (ev[0, 1] * ev[1, 1] + ev[0, 2] * ev[1, 2]) / r
-        r_v = (ev[0, 1] * ev[2, 1] + ev[0, 2] * ev[2, 2]) / r
-        res0 = ev[0, 0] - x0
-        res1 = r - r0
-        j00, j01, j10, j11 = ev[1, 0], ev[2, 0], r_u, r_v
-        det = j00 * j11 - j01 * j10
-        if abs(det) < 1e-300:
-            det = 1e-300
-        du = (j11 * res0 - j01 * res1) / det
-        dv = (-j10 * res0 + j00 * res1) / det
-        big = max(abs(du), abs(dv))
-        if big > 0.25:
-            du *= 0.25 / big
-            dv *= 0.25 / big
+        du, dv, _ = _meridional_step(ev, x0, r0)
         un = min(max(u - du, 0.0), 1.0)
         vn = min(max(v - dv, 0.0), 1.0)
         stalled = un == u and vn == v
         u, v = un, vn
         if max(abs(du), abs(dv)) < 1e-11 or stalled:
+            cycled = False
             break
     surface_eval(cp, tu, tv, u, v, work)
     r = math.hypot(ev[0, 1], ev[0, 2])
     resid = math.hypot(ev[0, 0] - x0, r - r0)
+    if resid >= 1e-7 and cycled:
+        u2, v2, resid2 = _uv_at_descending(cp, tu, tv, x0, r0, u_start, v_start, work)
+        if resid2 < 1e-7:
+            u, v, resid = u2, v2, resid2
+        surface_eval(cp, tu, tv, u, v, work)
     return u, v, resid < 1e-7, math.atan2(ev[0, 2], ev[0, 1])
-
 
 
 @numba.njit(cache=True)

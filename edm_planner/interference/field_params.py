@@ -20,7 +20,7 @@ from numpy.polynomial import chebyshev, polynomial
 
 
 #: format of the cached arrays; bump when the layout or the fill changes
-CACHE_VERSION = "edm_planner.fast_field/7"
+CACHE_VERSION = "edm_planner.fast_field/8"
 
 
 #: accuracy band the error bound is measured in [mm]

@@ -384,14 +384,14 @@ class SetDesigner:
                          margin_hub_shroud=max(po.search.margin_hub_shroud, margin))
         return replace(po, search=search, size_electrode=False)
 
-    def closed_channel_range(self):
+    def closed_channel_range(self, insets=EDGE_INSETS, resolution=EDGE_INSET_RESOLUTION):
         """The longest axial range an electrode can fill: the closed channel less the smallest inset that designs.
 
         The electrode stops where both blade walls still span hub to shroud; the
         default design keeps 0.5 % inside that range (the spline footprints' corners),
         which leaves end strips of stock, so the set tries thinner insets first
-        (``EDGE_INSETS``), and between one that fails and the next that designs
-        bisects for the thinnest that designs (``EDGE_INSET_RESOLUTION``).
+        (``insets``, shares of the channel length), and between one that fails and
+        the next that designs bisects for the thinnest that designs, to ``resolution``.
         """
         fx0, fx1 = self.blisk.full_span_axial_range
         length = fx1 - fx0
@@ -404,11 +404,11 @@ class SetDesigner:
                 return False
 
         failed = None
-        for share in EDGE_INSETS:
+        for share in insets:
             if designs(share):
                 # between a share that fails and one that designs, the thinnest that designs (a faceted or measured
                 # blade's walls may stop covering the span a little inside its sections' extent)
-                while failed is not None and share - failed > EDGE_INSET_RESOLUTION:
+                while failed is not None and share - failed > resolution:
                     mid = 0.5 * (failed + share)
                     failed, share = (failed, mid) if designs(mid) else (mid, share)
                 return (fx0 + share * length, fx1 - share * length)
