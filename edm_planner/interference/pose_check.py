@@ -23,7 +23,7 @@ from . import SURFACES
 from . import fast as _fast
 from . import min_search as _search
 from .exact_points import transform_points
-from .wall_features import TriangleGrid
+from .wall_features import triangle_grid
 
 _log = logging.getLogger(__name__)
 
@@ -256,7 +256,7 @@ def verify_poses(poses, vertices, channel, blisk, field=None, *, threshold=0.0, 
         cover = features.cover
         P0 = _channel_zero(P, channel, blisk.pitch)
         upper = np.broadcast_to([best[SURFACES[0]], best[SURFACES[1]]], (N, 2))
-        feat = features.clearances(P0, TriangleGrid.from_mesh(V, faces), upper=upper)
+        feat = features.clearances(P0, triangle_grid(V, faces), upper=upper)
         for j in range(2):
             i = int(np.argmin(feat[:, j]))
             if feat[i, j] < best[SURFACES[j]]:

@@ -362,6 +362,8 @@ class SetDesigner:
         self._pool = None
         self._wall_samples = None
         self._inherent = None            # the corner rounding at the wall samples (prove)
+        self._walls_future = None        # the same, being made in a worker (_start_workers)
+        self._starter = None             # the thread that starts the workers (_start_workers)
         self.t0 = None
         self._where, self._name = (0, 1, 0, 1), ""
         self._sizing = ""                # what the sizing step tries: start, radial, circumferential
@@ -599,8 +601,12 @@ class SetDesigner:
         code that made the candidates' electrodes.
         """
         if self._wall_samples is None:                # the same walls for every candidate
-            self._wall_samples = wall_samples(self.blisk, self.options.removal_spacing)
-            self._inherent = corner_rounding_stock(self.blisk, self._wall_samples, self.base.discharge_gap)
+            future, self._walls_future = self._walls_future, None
+            if future is not None:
+                self._wall_samples, self._inherent = future.result()
+            else:
+                self._wall_samples, self._inherent = _wall_reference(self.blisk, self.options.removal_spacing,
+                                                                     self.base.discharge_gap)
         pool = self._workers_pool()               # the sizing workers share out the wall samples
         report = simulate_removal(self.blisk, self.sweeps(candidate), self.base.discharge_gap,
                                   tolerance=self.options.tolerance, samples=self._wall_samples,
@@ -630,6 +636,7 @@ class SetDesigner:
         self.t0 = budget_clock()
         self._report(0.0, "the axial range the electrodes can fill")
         self.base = replace(self.base, axial_range=self.closed_channel_range())
+        self._start_workers()
         cands = [Candidate(name, [Piece(lab, eid, d) for lab, eid, d in pieces])
                  for name, pieces in candidate_sets(self.blisk, self.base, self.options)]
         self._cands, self._ahead, self._stashed = cands, {}, []
@@ -764,11 +771,43 @@ class SetDesigner:
         """
         if self.field_cache is None or (self.executor_kind != "ray" and self.workers < 2):
             return None
+        self._join_starter()
         if self._pool is None:
             self._pool = self.make_executor(self.workers)
             self._reports = self._pool.reports
             self.workers = self._pool.workers
         return self._pool
+
+    def _start_workers(self):
+        """Start the worker processes in the background, one of them sampling the walls for the proofs (with
+        their corner rounding): both overlap the first candidate's sizing, which runs in this process when it
+        is one electrode, instead of waiting in front of its proof (Rotor 37: about 4 s to start the workers,
+        3.7 s for the walls). A thread starts them: a spawned worker holds up its starter until it has read
+        its start-up data."""
+        if self.field_cache is None or self._starter is not None or self._wall_samples is not None:
+            return
+
+        def start():
+            try:
+                pool = self._workers_pool()
+            except Exception as exc:            # made again where it is needed, which raises there
+                _log.warning("electrode set: the workers could not be started ahead: %s", exc)
+                return
+            if pool is None or self._cancel.is_set():
+                return
+            self._walls_future = pool.submit(_walls_in_worker, self.options.removal_spacing,
+                                             self.base.discharge_gap)
+            for _ in range(self.workers - 1):
+                pool.submit(_ready_in_worker)   # a process pool starts a worker per task it has no idle one for
+
+        self._starter = threading.Thread(target=start, name="electrode-set workers", daemon=True)
+        self._starter.start()
+
+    def _join_starter(self):
+        """Wait for :meth:`_start_workers`' thread (from any other thread): the pool is then made or not."""
+        starter = self._starter
+        if starter is not None and starter is not threading.current_thread():
+            starter.join()
 
     def make_executor(self, workers, kind=None):
         """A new executor (:func:`.executors.make_executor`) of ``workers`` whose workers hold this designer's
@@ -782,7 +821,10 @@ class SetDesigner:
 
     def close(self):
         """Stop the worker processes (if any): after their running jobs, or at once after :meth:`cancel`."""
+        self._join_starter()
+        self._starter = None
         pool, self._pool = self._pool, None
+        self._walls_future = None
         if pool is not None:
             if self._cancel.is_set():
                 pool.terminate()
@@ -835,6 +877,22 @@ def _size_in_worker(piece, remaining, where=(0, 1, 0, 1), name=""):
     _WORKER._where, _WORKER._name, _WORKER._fraction = where, name, 0.0
     ok = _WORKER.size_piece(piece)
     return ok, piece
+
+
+def _wall_reference(blisk, spacing, gap):
+    """The proofs' wall samples and their corner rounding (the inherent stock): (samples, inherent)."""
+    samples = wall_samples(blisk, spacing)
+    return samples, corner_rounding_stock(blisk, samples, gap)
+
+
+def _walls_in_worker(spacing, gap):
+    """:func:`_wall_reference` of the worker's blisk."""
+    return _wall_reference(_WORKER.blisk, spacing, gap)
+
+
+def _ready_in_worker():
+    """Nothing: a task that makes the pool start a worker process."""
+    return True
 
 
 def _plan_in_worker(piece, h, radial):

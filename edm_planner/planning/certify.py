@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..interference import SURFACES
-from ..interference.wall_features import TriangleGrid
+from ..interference.wall_features import triangle_grid
 
 #: how far an exact measurement (the plan's exact re-check, the removal proof) may lie below the certificate's
 #: bound before the two disagree [mm]: the exact solvers' and the wall samples' accuracy (1e-6 mm each), with
@@ -163,7 +163,7 @@ class PathCertifier:
         self.features, self.triangles = None, None
         if faces is not None:
             self.features = field.wall_features
-            self.triangles = TriangleGrid.from_mesh(vertices, faces)
+            self.triangles = triangle_grid(vertices, faces)
         self.final_offset = np.asarray(final_offset, dtype=np.float64)
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
         self.pose_of = pose_of

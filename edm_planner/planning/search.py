@@ -28,7 +28,7 @@ import numpy as np
 from ..budget import budget_clock
 from ..errors import ErrorCode
 from ..interference import SURFACES
-from ..interference.wall_features import TriangleGrid
+from ..interference.wall_features import triangle_grid
 from ..cnc.kinematics import state_poses
 from .ga import GAOptions, NoFeasibleStart, minimize_ga
 from .lp import DenseLp
@@ -172,7 +172,7 @@ class ExitSearch:
         # column of the clearances (label 5, blade surfaces only), which a vertex sample cannot stand for
         self.features, self.triangles = getattr(field, "wall_features", None), None
         if self.features is not None:
-            self.triangles = TriangleGrid.from_mesh(electrode.mesh.vertices, electrode.mesh.faces)
+            self.triangles = triangle_grid(electrode.mesh.vertices, electrode.mesh.faces)
             self.labels.append(np.array([5]))
         self.labels = np.concatenate(self.labels)
         self.required = np.array([o.margin_blade, o.margin_blade, o.margin_hub_shroud, o.margin_hub_shroud])
