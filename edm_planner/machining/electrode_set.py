@@ -59,7 +59,7 @@ from .corner_rounding import corner_rounding_stock
 from .cycle import CycleBuilder, CycleOptions, shift_channel
 from .proof_path import proof_samples
 from .removal import simulate_removal
-from .executors import drain, kind_for, make_executor
+from .executors import LOCAL, drain, kind_for, make_executor
 from .set_progress import SetDesignCancelled, SetProgress
 from .swept_stock import Sweep
 from .wall_samples import wall_samples
@@ -783,8 +783,10 @@ class SetDesigner:
         their corner rounding): both overlap the first candidate's sizing, which runs in this process when it
         is one electrode, instead of waiting in front of its proof (Rotor 37: about 4 s to start the workers,
         3.7 s for the walls). A thread starts them: a spawned worker holds up its starter until it has read
-        its start-up data."""
-        if self.field_cache is None or self._starter is not None or self._wall_samples is not None:
+        its start-up data. Local workers only: Ray is started or joined where it is first needed, in the
+        designer's own thread, as before."""
+        if (self.field_cache is None or self.executor_kind != LOCAL or self._starter is not None
+                or self._wall_samples is not None):
             return
 
         def start():
