@@ -15,7 +15,7 @@ with respect to the electrode meshes and the given poses). It prunes
 1-Lipschitz in the point, and between two poses a and s a point p, seen in
 the electrode frame, moves by |q_s - q_a| <= ||R_s^T - R_a^T|| |p - c| +
 |(R_s^T - R_a^T) c - (R_s^T o_s - R_a^T o_a)| (c the centroid of the
-points). The poses of a sweep form a binary tree of intervals (each node
+point's part: the points are split into ``CLUSTERS`` parts, :func:`_clusters`). The poses of a sweep form a binary tree of intervals (each node
 evaluated at its middle pose; :class:`_PoseTree`); a pair is refined into the
 node's halves only while ``sd(middle) - travel`` could still beat the point's
 best, and a child is skipped without a distance query where the point's
@@ -111,13 +111,13 @@ def _scatter_min(idx, vals, pose, best, which, j):
 class _PoseTree:
     """Binary tree of pose intervals with travel bounds; node = (lo, hi), evaluated at its middle pose.
 
-    ``travel(node, d)`` bounds, for a point at distance d from ``centre``, how far
-    it moves in the electrode frame between the node's middle pose and any pose
-    of the node's interval; ``travel_from_parent`` the same from the parent's
-    middle pose.
+    ``alpha[node] * d + beta[node, k]`` bounds, for a point of part k at distance d
+    from that part's centre (row k of ``centres``), how far it moves in the
+    electrode frame between the node's middle pose and any pose of the node's
+    interval; ``alpha_par``, ``beta_par`` the same from the parent's middle pose.
     """
 
-    def __init__(self, inv_r, inv_t, centre, first, last):
+    def __init__(self, inv_r, inv_t, centres, first, last):
         self.inv_r, self.inv_t = inv_r, inv_t
         lo, hi, parent = [first], [last], [-1]
         level = [0]
@@ -142,15 +142,15 @@ class _PoseTree:
                 self.right[p] = i
         anchor_self = self.mid
         anchor_parent = np.where(self.parent >= 0, self.mid[np.maximum(self.parent, 0)], self.mid)
-        self.alpha, self.beta = self._bounds(anchor_self, centre)
-        self.alpha_par, self.beta_par = self._bounds(anchor_parent, centre)
+        self.alpha, self.beta = self._bounds(anchor_self, centres)
+        self.alpha_par, self.beta_par = self._bounds(anchor_parent, centres)
 
-    def _bounds(self, anchor, centre):
-        """Per node: max over its poses s of ||R_s^T - R_a^T|| and, per centre c (rows of ``centre``, (K, 3)),
+    def _bounds(self, anchor, centres):
+        """Per node: max over its poses s of ||R_s^T - R_a^T|| and, per centre c (rows of ``centres``, (K, 3)),
         |(R_s^T - R_a^T) c + t_s - t_a|: (alpha (nodes,), beta (nodes, K))."""
-        centre = np.atleast_2d(centre)
+        centres = np.atleast_2d(centres)
         alpha = np.zeros(len(self.lo))
-        beta = np.zeros((len(self.lo), len(centre)))
+        beta = np.zeros((len(self.lo), len(centres)))
         # nodes of one depth have disjoint intervals: one vectorised pass per depth
         depth = np.zeros(len(self.lo), dtype=int)
         for i in range(1, len(self.lo)):
@@ -163,7 +163,7 @@ class _PoseTree:
             a = anchor[owner]
             dr = self.inv_r[s] - self.inv_r[a]
             norm = np.linalg.norm(dr, ord=2, axis=(1, 2))
-            shift = np.linalg.norm(dr @ centre.T + (self.inv_t[s] - self.inv_t[a])[:, :, None], axis=1)
+            shift = np.linalg.norm(dr @ centres.T + (self.inv_t[s] - self.inv_t[a])[:, :, None], axis=1)
             start = np.concatenate([[0], np.cumsum(sizes)[:-1]])
             alpha[nodes] = np.maximum.reduceat(norm, start)
             beta[nodes] = np.maximum.reduceat(shift, start)
