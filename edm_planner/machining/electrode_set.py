@@ -797,10 +797,14 @@ class SetDesigner:
                 return
             if pool is None or self._cancel.is_set():
                 return
-            self._walls_future = pool.submit(_walls_in_worker, self.options.removal_spacing,
-                                             self.base.discharge_gap)
-            for _ in range(self.workers - 1):
-                pool.submit(_ready_in_worker)   # a process pool starts a worker per task it has no idle one for
+            try:
+                self._walls_future = pool.submit(_walls_in_worker, self.options.removal_spacing,
+                                                 self.base.discharge_gap)
+                for _ in range(self.workers - 1):
+                    pool.submit(_ready_in_worker)  # a process pool starts a worker per task it has no idle one for
+            except RuntimeError:
+                if not self._cancel.is_set():   # cancel() shut the pool meanwhile: nothing left to start
+                    raise
 
         self._starter = threading.Thread(target=start, name="electrode-set workers", daemon=True)
         self._starter.start()

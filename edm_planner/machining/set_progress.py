@@ -103,9 +103,15 @@ def terminate_pool(pool, timeout=5.0):
 
     ``shutdown(wait=True)`` would wait for the running jobs (a piece's whole sizing); a cancelled design
     must not. Futures still waited on fail with BrokenProcessPool. Safe to call twice and from any thread.
+
+    A ``submit`` in another thread may be spawning a worker meanwhile (it does so holding the pool's shutdown
+    lock, and a spawned worker holds it until it has read its start-up data). So the pool's own table of
+    processes is kept, not a copy of it: ``shutdown`` takes that lock, so when it returns every worker ever
+    spawned is in the table, and no later ``submit`` spawns one (it raises RuntimeError).
     """
-    processes = list((getattr(pool, "_processes", None) or {}).values())
+    table = getattr(pool, "_processes", None)       # shutdown drops the pool's reference, not the table
     pool.shutdown(wait=False, cancel_futures=True)
+    processes = list((table or {}).values())
     for process in processes:
         if process.is_alive():
             process.terminate()
