@@ -71,3 +71,49 @@ def test_rotor37s_electrodes_reach_the_thinnest_inset_too():
     g = load_geometry(CONFIG / "rotor37.yaml")
     designer = SetDesigner(g, None, workers=1)
     assert _share(g.blisk, designer.closed_channel_range()) == pytest.approx(EDGE_INSETS[0], abs=1e-12)
+
+
+def _uv_at_all_steps(net, x0, r0, u, v):
+    """``spline_kernels.uv_at`` without its 2-cycle shortcut: all 30 plain Newton steps, then the descending
+    Newton where they end off the position; the loop in Python around the compiled step functions, so that its
+    arithmetic is the kernel's. (u, v, inside, cycled)."""
+    from edm_planner.geometry import spline_kernels as K
+
+    cp, tu, tv = net
+    work = K.new_work()
+    ev = work[2]
+    u_start, v_start, cycled = u, v, True
+    for _ in range(30):
+        K.surface_eval(cp, tu, tv, u, v, work)
+        du, dv, _ = K._meridional_step(ev, x0, r0)
+        un, vn = min(max(u - du, 0.0), 1.0), min(max(v - dv, 0.0), 1.0)
+        stalled = un == u and vn == v
+        u, v = un, vn
+        if max(abs(du), abs(dv)) < 1e-11 or stalled:
+            cycled = False
+            break
+    K.surface_eval(cp, tu, tv, u, v, work)
+    resid = float(np.hypot(ev[0, 0] - x0, np.hypot(ev[0, 1], ev[0, 2]) - r0))
+    if resid >= 1e-7 and cycled:
+        u2, v2, resid2 = K._uv_at_descending(cp, tu, tv, x0, r0, u_start, v_start, work)
+        if resid2 < 1e-7:
+            u, v, resid = u2, v2, resid2
+    return u, v, resid < 1e-7, cycled
+
+
+def test_the_footprint_newtons_cycle_shortcut_gives_the_bits_of_all_its_steps():
+    # uv_at ends an exact 2-cycle at once on the state its 30 steps would end on: near the mesh blisk's
+    # trailing edge, where plain Newton cycles, every answer is the same bits as running all the steps
+    from edm_planner.geometry.spline_kernels import uv_at_many
+
+    g = load_geometry(CONFIG / "mesh_blisk.yaml")
+    face = g.blisk.pressure_face
+    x, r = np.meshgrid(np.linspace(23.55, 23.95, 41), np.linspace(119.0, 121.0, 21))
+    x, r = x.ravel(), r.ravel()
+    _, idx = face._xr_tree.query(np.column_stack([x, r]) / face._xr_scale)
+    starts = np.ascontiguousarray(face._seed_uv[idx])
+    uv, inside = uv_at_many(*face._net, x, r, starts)
+    reference = [_uv_at_all_steps(face._net, a, b, *s) for a, b, s in zip(x, r, starts)]
+    assert sum(c for *_, c in reference) >= 20, "the grid must hold points where plain Newton cycles"
+    assert np.array_equal(uv, np.array([(u, v) for u, v, *_ in reference]))
+    assert np.array_equal(inside, np.array([i for _, _, i, _ in reference]))
