@@ -364,27 +364,17 @@ def uv_at(cp, tu, tv, x0, r0, u, v, work):
     """
     ev = work[2]
     u_start, v_start = u, v
-    u_back, v_back = np.nan, np.nan          # the state two steps back
     cycled = True
-    for i in range(30):
+    for _ in range(30):
         surface_eval(cp, tu, tv, u, v, work)
         du, dv, _ = _meridional_step(ev, x0, r0)
         un = min(max(u - du, 0.0), 1.0)
         vn = min(max(v - dv, 0.0), 1.0)
         stalled = un == u and vn == v
+        u, v = un, vn
         if max(abs(du), abs(dv)) < 1e-11 or stalled:
-            u, v = un, vn
             cycled = False
             break
-        if un == u_back and vn == v_back:
-            # an exact 2-cycle (a step onto the clip at u = 1 and back): the steps left would alternate
-            # between the two states without ending the loop, so it ends, after its 30 steps, on the state
-            # of the same parity: taken at once, the same bits in fewer surface evaluations
-            if (29 - i) % 2 == 0:
-                u, v = un, vn
-            break
-        u_back, v_back = u, v
-        u, v = un, vn
     surface_eval(cp, tu, tv, u, v, work)
     r = math.hypot(ev[0, 1], ev[0, 2])
     resid = math.hypot(ev[0, 0] - x0, r - r0)
