@@ -24,6 +24,19 @@ PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
 KERNEL_MARKERS = (b"njit", b"numba.jit", b"@numba.", b"intrinsic", b"overload", b"cfunc", b"vectorize")
 
 
+def _sources_digest(package, keep):
+    """A digest of the package's modules whose source ``keep(text)`` accepts (file name and text)."""
+    digest = hashlib.sha256()
+    for folder, subfolders, files in sorted(os.walk(package)):
+        subfolders.sort()
+        for name in sorted(f for f in files if f.endswith(".py")):
+            with open(os.path.join(folder, name), "rb") as source:
+                text = source.read()
+            if keep(text):
+                digest.update(name.encode() + b"\0" + text)
+    return digest.hexdigest()[:16]
+
+
 def kernel_sources_digest(package=PACKAGE_DIR):
     """A digest of every module of the package that defines numba kernels (about 2 ms).
 
@@ -35,15 +48,13 @@ def kernel_sources_digest(package=PACKAGE_DIR):
     defines no kernel (``KERNEL_MARKERS``) keeps the directory: recompiling
     every kernel costs a new process about a minute.
     """
-    digest = hashlib.sha256()
-    for folder, subfolders, files in sorted(os.walk(package)):
-        subfolders.sort()
-        for name in sorted(f for f in files if f.endswith(".py")):
-            with open(os.path.join(folder, name), "rb") as source:
-                text = source.read()
-            if any(marker in text for marker in KERNEL_MARKERS):
-                digest.update(name.encode() + b"\0" + text)
-    return digest.hexdigest()[:16]
+    return _sources_digest(package, lambda text: any(marker in text for marker in KERNEL_MARKERS))
+
+
+def package_sources_digest(package=PACKAGE_DIR):
+    """A digest of every module of the package (a few ms): what an on-disk cache of computed results is keyed
+    by, so that any change of the code computes them anew (``geometry.electrode_cache``)."""
+    return _sources_digest(package, lambda text: True)
 
 
 def configure_process(environ=None):

@@ -48,7 +48,8 @@ from .. import CACHE_ROOT
 from ..errors import EdmError, ErrorCode
 from ..geometry.as_measured import MeasuredBlades, channel_blisk, channel_field_key
 from ..geometry.blisk import Blisk
-from ..geometry.electrode import ElectrodeDesign, design_electrodes
+from ..geometry.electrode import ElectrodeDesign
+from ..geometry.electrode_cache import cached_design
 from ..interference.checker import ChannelChecker, CheckerOptions, Method
 from ..cnc.kinematics import AXES_5, FiveAxisKinematics
 from ..ros.runtime import answer, spin_node
@@ -204,7 +205,7 @@ class InterferenceCheckerNode(Node):
                 self.redesigned.move_to_end(key)
         if known is None:
             try:
-                electrodes = design_electrodes(checker.blisk, design)
+                electrodes = cached_design(checker.blisk, design, cache_dir=self._options().cache_dir)
             except ValueError as exc:
                 raise EdmError(ErrorCode.INVALID_REQUEST, f"electrode design: {exc}") from None
             known = checker.with_electrodes({e.electrode_id: (e.mesh, e.final_pose) for e in electrodes})

@@ -62,7 +62,8 @@ from .. import CACHE_ROOT
 from ..errors import EdmError, ErrorCode
 from ..geometry.as_measured import MeasuredBlades
 from ..geometry.blisk import Blisk
-from ..geometry.electrode import ElectrodeDesign, design_electrodes
+from ..geometry.electrode import ElectrodeDesign
+from ..geometry.electrode_cache import cached_design
 from ..geometry.loader import LoadedGeometry
 from ..interference import SURFACES
 from ..interference.fast import FastChannelField
@@ -401,11 +402,11 @@ class TrajectoryPlannerNode(Node):
             design = ElectrodeDesign.from_dict(model.get("electrode_design") or {})
             prepared.blisk, prepared.design = blisk, design
             prepared.parsed.set()          # stored plans are answered from here on
-            electrodes = design_electrodes(blisk, design)
+            cache = self.get_parameter("cache_dir").value or CACHE_ROOT
+            electrodes = cached_design(blisk, design, cache_dir=cache)
             measured = MeasuredBlades.from_dict(model.get("as_measured"))
             prepared.geometry = LoadedGeometry(gid, blisk, design, electrodes, source=model.get("source", ""),
                                                measured=measured)
-            cache = self.get_parameter("cache_dir").value or CACHE_ROOT
             # a blisk as measured: this is its nominal channels' field, the nominal file's
             key = measured.nominal_field_key if measured is not None and measured.nominal_field_key else gid
             prepared.field = FastChannelField(blisk, spacing=float(self.get_parameter("fast_spacing").value),
@@ -460,7 +461,8 @@ class TrajectoryPlannerNode(Node):
         if plan is None:
             prepared = self._geometry(gid)
             plan = plan_channel(prepared.geometry, int(request.channel), request.electrode_id, options,
-                                field=prepared.field, progress=progress, design=design)
+                                field=prepared.field, progress=progress, design=design,
+                                cache_dir=self.get_parameter("cache_dir").value or CACHE_ROOT)
             note = self._store(plan, key)
         else:
             progress("stored", 1.0, plan.metrics.node_count, 0.0, f"plan {plan.plan_id} from the plan store")

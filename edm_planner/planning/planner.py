@@ -30,6 +30,7 @@ from ..budget import budget_clock
 from ..errors import EdmError, ErrorCode
 from ..geometry.centerline import channel_centerline
 from ..geometry.electrode import design_electrodes
+from ..geometry.electrode_cache import cached_design
 from ..geometry.frames import rotation_about_x
 from ..interference import SURFACES
 from ..interference.fast import FastChannelField
@@ -161,7 +162,7 @@ def plan_channel(geometry, channel=0, electrode_id="", options=None, field=None,
         field = FastChannelField(blisk, spacing=0.1, cache_dir=cache_dir, cache_key=geometry.field_key)
     base_design = design or geometry.design
     if electrodes is None:
-        electrodes = geometry.electrodes if design is None else design_electrodes(blisk, design)
+        electrodes = geometry.electrodes if design is None else cached_design(blisk, design, cache_dir=cache_dir)
     electrode = _pick(electrodes, electrode_id)
     if options.size_electrode:
         plan = _size(geometry, channel, electrode.electrode_id, options, field, progress, base_design, t0)
