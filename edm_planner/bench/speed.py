@@ -17,8 +17,9 @@ compared methods do the same work. Figures, units in the keys:
   rear electrode of a front/rear split, 5 axes, step 0.1 mm, exit downstream)
   planned and certified, with its quality figures;
 * ``edm_plan_cli_s``: ``edm-plan plan`` of that electrode as a new process
-  (``--store none``: a real plan each time), with the field and numba caches
-  warm;
+  (``--store none``: a real plan each time), with the field, numba and
+  electrode caches warm (the untimed first run fills them, as a cell's first
+  channel does);
 * ``demo``: ``python -m edm_planner.nodes.programs.demo`` (what ``make demo`` runs)
   with an empty field cache and plan store (a new HOME; numba's cache kept,
   as ``make setup`` leaves it), then once more with what the first run left.
