@@ -2,7 +2,9 @@
 
 CI caught this on 2026-11-28: the design's starter thread (``SetDesigner._start_workers``) was spawning a
 worker when the action was cancelled; ``terminate_pool`` had copied the pool's processes before the spawn
-ended, and the new worker outlived the cancel.
+ended, and the new worker outlived the cancel. CI then caught this test itself failing (2026-11-28, then
+3 of 25 runs on a loaded machine): the pool's manager thread had reaped a terminated worker but not yet
+recorded its exit, so the worker still looked alive; ``terminate_pool`` now waits for that thread too.
 """
 
 import concurrent.futures
@@ -26,6 +28,7 @@ def test_terminate_pool_stops_a_worker_being_spawned_by_another_thread():
     pool = concurrent.futures.ProcessPoolExecutor(max_workers=2, mp_context=multiprocessing.get_context("spawn"),
                                                   initializer=_start_and_never_finish, initargs=(START_DATA,))
     refused = []
+    before = set(multiprocessing.active_children())      # another test's processes are not this test's business
 
     def submit():               # as the starter thread does: one task per worker, each spawning one
         try:
@@ -43,12 +46,15 @@ def test_terminate_pool_stops_a_worker_being_spawned_by_another_thread():
             assert starter.is_alive(), "the starter ended before a spawn was seen (the test saw no race)"
             assert time.monotonic() < deadline, "no worker spawn started within 120 s"
             time.sleep(0.0005)
+        table = pool._processes
         terminate_pool(pool)
+        # on return, not later: every worker has exited and its exit is recorded
+        assert table and all(p.exitcode is not None for p in table.values()), f"still running: {table}"
         starter.join(120)
         assert not starter.is_alive(), "the starter thread hangs after terminate_pool"
-        alive = multiprocessing.active_children()
+        alive = [p for p in multiprocessing.active_children() if p not in before]
         assert not alive, f"a worker spawned during terminate_pool outlived it: {alive}"
     finally:
-        for process in multiprocessing.active_children():     # a failed run must not leave them behind
+        for process in set(multiprocessing.active_children()) - before:    # a failed run must not leave them
             process.kill()
             process.join(10)

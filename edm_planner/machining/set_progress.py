@@ -9,6 +9,7 @@ PlanElectrodeSet``) and ``edm-plan plan``'s progress lines are filled from it.
 """
 
 import math
+import threading
 from dataclasses import dataclass, replace
 
 #: below this fraction done the time left is not estimated (NaN): the first steps say little about the rest
@@ -108,15 +109,30 @@ def terminate_pool(pool, timeout=5.0):
     lock, and a spawned worker holds it until it has read its start-up data). So the pool's own table of
     processes is kept, not a copy of it: ``shutdown`` takes that lock, so when it returns every worker ever
     spawned is in the table, and no later ``submit`` spawns one (it raises RuntimeError).
+
+    The pool's manager thread reaps the workers too (it joins them once it sees one die). A worker it has
+    reaped but whose exit it has not yet recorded looks alive to every other thread (``waitpid`` answers
+    ECHILD), so that thread is waited for as well: on return every worker's ``exitcode`` is set.
     """
     table = getattr(pool, "_processes", None)       # shutdown drops the pool's reference, not the table
     pool.shutdown(wait=False, cancel_futures=True)
+    managers = _manager_threads(pool)               # found after shutdown: a submit may have started it
     processes = list((table or {}).values())
     for process in processes:
         if process.is_alive():
             process.terminate()
+    for manager in managers:
+        manager.join(timeout)       # it ends once it has joined the terminated workers
     for process in processes:
         process.join(timeout)
-        if process.is_alive():
+        if process.is_alive():      # SIGTERM ignored (or the manager thread still joining it)
             process.kill()
             process.join(timeout)
+    for manager in managers:
+        manager.join(timeout)
+
+
+def _manager_threads(pool):
+    """The threads managing ``pool`` (a ProcessPoolExecutor's internal thread holds a weak reference to it)."""
+    return [thread for thread in threading.enumerate()
+            if callable(getattr(thread, "executor_reference", None)) and thread.executor_reference() is pool]
