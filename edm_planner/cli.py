@@ -51,6 +51,7 @@ from .records.store import (PlanStoreError, open_store, plan_cycle_of_stored, pl
 # other commands, `edm-plan plan` first, do not pay for them (about 0.2 s here).
 
 DEFAULT_CACHE = CACHE_ROOT
+CACHE_HELP = "cache of distance fields, designed electrodes and workpiece deviations"
 
 
 def _parser():
@@ -100,7 +101,7 @@ def _parser():
     e.add_argument("--radial-reduction", type=float, metavar="MM")
     e.add_argument("--split", choices=("none", "left_right", "front_rear"))
     e.add_argument("--split-overlap", type=float, metavar="MM")
-    q.add_argument("--cache-dir", default=DEFAULT_CACHE, metavar="DIR", help="distance field cache")
+    q.add_argument("--cache-dir", default=DEFAULT_CACHE, metavar="DIR", help=CACHE_HELP)
     q.add_argument("--machine", metavar="FILE.yaml",
                    help="machine file whose process section (regimes, wear) an electrode set is planned with "
                         "(default: config/machine.yaml)")
@@ -131,7 +132,7 @@ def _parser():
     c.add_argument("plan_dir", metavar="DIR")
     c.add_argument("--geometry", required=True, metavar="FILE.yaml", help="the geometry the plan was made for")
     c.add_argument("--threshold", type=float, default=0.0, metavar="MM", help="smallest clearance accepted")
-    c.add_argument("--cache-dir", default=DEFAULT_CACHE, metavar="DIR", help="distance field cache")
+    c.add_argument("--cache-dir", default=DEFAULT_CACHE, metavar="DIR", help=CACHE_HELP)
     _progress_argument(c)
     c.add_argument("-v", "--verbose", action="store_true")
     t = sub.add_parser("plot", help="pictures of an exported plan: axis curves and the channel view")
@@ -348,7 +349,7 @@ def _plan(args, out, err):
     else:
         plan = plan_channel(geometry, args.channel, args.electrode, options, progress=progress,
                             cache_dir=args.cache_dir, design=design)
-    path = write_plan(plan, args.out, geometry.blisk)
+    path = write_plan(plan, args.out, geometry.blisk, cache_dir=args.cache_dir)
     not_kept = ""
     if stored is None and plan.success and store is not None:
         # after the export: a store that cannot take the plan (a full disk) costs no plan
@@ -416,7 +417,7 @@ def _plan_set(args, geometry, options, store, progress, out, err):
     result = designer.design(args.channel)
     not_kept = ""
     try:
-        path = write_set(result, args.out, geometry.blisk, store, channels=channels)
+        path = write_set(result, args.out, geometry.blisk, store, channels=channels, cache_dir=args.cache_dir)
     except PlanStoreError as exc:              # every file is written: only the store's copy is missing
         path, not_kept = pathlib.Path(args.out) / "set.json", exc.message
         print(f"warning: {exc.message}", file=err)
@@ -545,16 +546,17 @@ def _plan_blisk(args, geometry, options, progress, out, err):
         found = outcome.electrode_set
         try:
             if found is not None:
-                path = write_set(found, where, blisk, None, channels=outcome.members)
+                path = write_set(found, where, blisk, None, channels=outcome.members, cache_dir=args.cache_dir)
                 exports[rep] = [str((path.parent / e["export"]).relative_to(root))
                                 for e in json.loads(path.read_text()).get("electrodes", [])]
             elif outcome.ok and not fixed:
                 seq = store.get_sequence(set_id_of(rep))
-                write_stored_set(outcome.plans, outcome.labels, seq.meta, where, blisk)
+                write_stored_set(outcome.plans, outcome.labels, seq.meta, where, blisk, cache_dir=args.cache_dir)
                 exports[rep] = [str((where / label).relative_to(root)) for label in outcome.labels]
             elif outcome.ok:
-                exports[rep] = [str(write_plan(p, where / label, blisk).parent.relative_to(root))
-                                for p, label in zip(outcome.plans, outcome.labels)]
+                written = [write_plan(p, where / label, blisk, cache_dir=args.cache_dir)
+                           for p, label in zip(outcome.plans, outcome.labels)]
+                exports[rep] = [str(path.parent.relative_to(root)) for path in written]
         finally:
             _write_blisk_json(root, geometry, groups, args.geometry, exports, done)
         if store is None or outcome.status != "planned":

@@ -13,6 +13,7 @@ import numpy as np
 
 from edm_planner.bench.common import rear_design
 from edm_planner.environment import PACKAGE_DIR, package_sources_digest
+from edm_planner.geometry import disk_cache
 from edm_planner.geometry.electrode import design_electrodes
 from edm_planner.geometry.electrode_cache import cached_design, design_key, read_electrodes, write_electrodes
 from edm_planner.geometry.loader import load_geometry
@@ -56,7 +57,7 @@ def test_a_cached_design_is_the_design_bit_for_bit_and_is_read_back(tmp_path, de
     _same(fresh, cached_design(blisk, design, cache_dir=None))
 
 
-def test_the_key_covers_the_blisk_the_design_the_electrode_and_the_code(tmp_path, default_geometry):
+def test_the_key_covers_the_blisk_the_design_the_electrode_and_the_code(tmp_path, default_geometry, monkeypatch):
     blisk, design = default_geometry.blisk, rear_design()
     key = design_key(blisk, design)
     assert design_key(blisk, design) == key
@@ -72,6 +73,10 @@ def test_the_key_covers_the_blisk_the_design_the_electrode_and_the_code(tmp_path
     with open(copy / "geometry" / "electrode.py", "a") as source:
         source.write("# an edit\n")
     assert package_sources_digest(str(copy)) != package_sources_digest()
+    # and the key holds that digest (read once per process: the code this process runs)
+    assert disk_cache.code_digest() == package_sources_digest()
+    monkeypatch.setattr(disk_cache, "code_digest", lambda: package_sources_digest(str(copy)))
+    assert design_key(blisk, design) != key
 
 
 def test_an_unreadable_file_is_designed_again_and_replaced(tmp_path, default_geometry, caplog):

@@ -15,17 +15,14 @@ again and replaced; the newest ``KEEP`` files are kept. A cache that cannot be w
 never the answer. Units: mm, rad.
 """
 
-import hashlib
-import json
 import logging
-import os
 import pathlib
 import zipfile
 
 import numpy as np
 import trimesh
 
-from ..environment import package_sources_digest
+from .disk_cache import content_key, forget_oldest, mark_used, write_whole
 from .electrode import Electrode, ElectrodeDesign, design_electrodes
 
 _log = logging.getLogger(__name__)
@@ -42,9 +39,8 @@ SAMPLE_SETS = ("left", "right", "lower", "upper")
 
 def design_key(blisk, design=None, only=None):
     """The cache key of ``design_electrodes(blisk, design, only=only)`` (hex sha256)."""
-    doc = {"format": FORMAT, "code": package_sources_digest(), "blisk": blisk.to_dict(),
-           "design": (design or ElectrodeDesign()).to_dict(), "only": only}
-    return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
+    return content_key({"format": FORMAT, "blisk": blisk.to_dict(),
+                        "design": (design or ElectrodeDesign()).to_dict(), "only": only})
 
 
 def cached_design(blisk, design=None, *, cache_dir, only=None, keep=KEEP):
@@ -61,16 +57,13 @@ def cached_design(blisk, design=None, *, cache_dir, only=None, keep=KEEP):
     path = folder / f"{design_key(blisk, design, only)[:32]}.npz"
     electrodes = read_electrodes(path)
     if electrodes is not None:
-        try:
-            os.utime(path)                          # recently used: kept longest
-        except OSError:
-            pass
+        mark_used(path)
         return electrodes
     electrodes = design_electrodes(blisk, design, only=only)
     try:
         folder.mkdir(parents=True, exist_ok=True)
         write_electrodes(path, electrodes)
-        _forget_oldest(folder, keep)
+        forget_oldest(folder, "*.npz", keep)
     except OSError as exc:
         _log.warning("electrode cache %s: not written (%s); the electrodes are designed on every call", folder, exc)
     return electrodes
@@ -85,15 +78,7 @@ def write_electrodes(path, electrodes):
         arrays[f"pose_{i}"] = np.asarray(e.final_pose, dtype=np.float64)
         for name in SAMPLE_SETS:
             arrays[f"{name}_{i}"] = np.asarray(e.samples[name], dtype=np.float64)
-    path = pathlib.Path(path)
-    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as out:                 # a file object: savez adds no suffix
-            np.savez(out, **arrays)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    write_whole(path, lambda out: np.savez(out, **arrays))      # a file object: savez adds no suffix
 
 
 def read_electrodes(path):
@@ -115,16 +100,3 @@ def read_electrodes(path):
         _log.warning("electrode cache %s: unreadable (%s); designing the electrodes again", path, exc)
         return None
 
-
-def _forget_oldest(folder, keep):
-    def used(path):
-        try:
-            return path.stat().st_mtime
-        except OSError:                              # removed by another process meanwhile
-            return float("inf")
-
-    for old in sorted(folder.glob("*.npz"), key=used, reverse=True)[keep:]:
-        try:
-            old.unlink()
-        except OSError:                              # another process removed it first
-            pass

@@ -15,7 +15,7 @@ planning).
 Parameters
 ----------
 cache_dir : str
-    Directory of cached distance fields ('' : ~/.cache/edm_planner).
+    Directory of cached distance fields, designed electrodes and workpiece deviations ('' : ~/.cache/edm_planner).
 fast_spacing : float
     Distance-field spacing [mm].
 time_budget : float
@@ -485,7 +485,7 @@ class TrajectoryPlannerNode(Node):
             root = self.get_parameter("export_dir").value or os.path.join(
                 os.path.expanduser("~"), ".local", "share", "edm_planner", "plans")
             path = export_path(root, plan.plan_id, "plan id")        # never outside export_dir, never via a link
-            write_plan(plan, path, prepared.blisk)
+            write_plan(plan, path, prepared.blisk, cache_dir=self.get_parameter("cache_dir").value or CACHE_ROOT)
             response.export_path = str(path)
         self.plan_pub.publish(channel_plan_msg(plan_to_stored(plan), response.poses, response.axis_path,
                                                response.metrics))
@@ -637,10 +637,11 @@ class TrajectoryPlannerNode(Node):
             root = self.get_parameter("export_dir").value or os.path.join(
                 os.path.expanduser("~"), ".local", "share", "edm_planner", "plans")
             path = export_path(root, set_id, "set id")
+            cache = self.get_parameter("cache_dir").value or CACHE_ROOT
             if designer is not None:
-                write_set(result, path, prepared.blisk)
+                write_set(result, path, prepared.blisk, cache_dir=cache)
             else:
-                write_stored_set(plans, labels, meta, path, prepared.blisk)
+                write_stored_set(plans, labels, meta, path, prepared.blisk, cache_dir=cache)
             response.export_path = str(path)
         for plan, metrics in zip(plans, response.metrics):
             self.plan_pub.publish(channel_plan_msg(plan_to_stored(plan), pose_array_msg(plan.poses, frame),

@@ -135,14 +135,15 @@ def _cycle_csv(axis_names, cycle):
     return "\n".join(rows) + "\n"
 
 
-def _workpiece_deviation(blisk, channel, resolution, meshes):
+def _workpiece_deviation(blisk, channel, resolution, meshes, cache_dir=None):
     """plan.json's statement of how far workpiece.stl (float32, as written) lies from the true surfaces.
 
     Per surface, the upper bounds ``into_channel`` and ``into_material`` [mm] of
     :func:`~edm_planner.geometry.mesh_deviation.channel_mesh_deviation`, the
     sampled extremes they rest on and the remainder added between samples.
     """
-    dev = mesh_deviation.channel_mesh_deviation(blisk, channel, resolution, meshes, float32=True)
+    dev = mesh_deviation.cached_channel_mesh_deviation(blisk, channel, resolution, float32=True,
+                                                       cache_dir=cache_dir, meshes=meshes)
     return {
         "kind": mesh_deviation.KIND,
         "units": "mm",
@@ -155,7 +156,7 @@ def _workpiece_deviation(blisk, channel, resolution, meshes):
     }
 
 
-def write_plan(plan, out_dir, blisk, workpiece_resolution=0.5):
+def write_plan(plan, out_dir, blisk, workpiece_resolution=0.5, cache_dir=None):
     """Write a plan as an export directory (format ``edm_planner.plan/1``).
 
     Failed plans are written too (with their error code, message and how far the
@@ -171,6 +172,9 @@ def write_plan(plan, out_dir, blisk, workpiece_resolution=0.5):
     workpiece_resolution : float
         Edge length of the workpiece surface meshes [mm]; plan.json states their
         deviation from the true surfaces per surface and side (upper bounds).
+    cache_dir : path, optional
+        Where that deviation is kept between exports of the same channel
+        (:func:`~edm_planner.geometry.mesh_deviation.cached_channel_mesh_deviation`); None: measured anew.
 
     Returns
     -------
@@ -208,7 +212,7 @@ def write_plan(plan, out_dir, blisk, workpiece_resolution=0.5):
             start += len(meshes[s].faces)
         workpiece = out / FILES["workpiece"]
         _write_atomic(workpiece, trimesh.util.concatenate([meshes[s] for s in SURFACES]).export(file_type="stl"))
-        deviation = _workpiece_deviation(blisk, plan.channel, workpiece_resolution, meshes)
+        deviation = _workpiece_deviation(blisk, plan.channel, workpiece_resolution, meshes, cache_dir)
         axes = out / FILES["axes"]
         _write_atomic(axes, _axes_csv(names, samples))
         doc = {

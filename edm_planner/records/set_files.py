@@ -19,7 +19,7 @@ from .stock_maps import plot_stock_maps, stock_vertex_colours
 from .store import PlanStoreError, plan_to_stored
 
 
-def write_set(result, out_dir, blisk, store=None, channels=None):
+def write_set(result, out_dir, blisk, store=None, channels=None, cache_dir=None):
     """Write a designed set: one plan export per electrode (with its cycle), set.json and the stock maps.
 
     Parameters
@@ -37,6 +37,8 @@ def write_set(result, out_dir, blisk, store=None, channels=None):
     channels : list of int, optional
         The channels the set may machine (``set.json`` ``channels``): on a blisk as measured, the group of
         channels whose walls agree with the designed one's (``LoadedGeometry.channel_groups``); None: all.
+    cache_dir : path, optional
+        Where the exports' workpiece deviations are kept (:func:`.plan_export.write_plan`); None: measured anew.
 
     Returns
     -------
@@ -57,7 +59,7 @@ def write_set(result, out_dir, blisk, store=None, channels=None):
     if chosen is not None:
         doc["electrodes"] = []
         for order, piece in enumerate(chosen.pieces):
-            path = write_plan(piece.plan, out / piece.label, blisk)
+            path = write_plan(piece.plan, out / piece.label, blisk, cache_dir=cache_dir)
             doc["electrodes"].append({"order": order, "label": piece.label, "plan_id": piece.plan.plan_id,
                                       "regime": piece.regime, "export": str(path.parent.relative_to(out))})
         if chosen.process is not None:
@@ -88,7 +90,7 @@ def write_set(result, out_dir, blisk, store=None, channels=None):
     return path
 
 
-def write_stored_set(plans, labels, meta, out_dir, blisk):
+def write_stored_set(plans, labels, meta, out_dir, blisk, cache_dir=None):
     """Write a set kept in the plan store: its plan exports and set.json (``meta``, as stored).
 
     The stock map needs the proof's arrays, which the store does not keep: an
@@ -99,7 +101,7 @@ def write_stored_set(plans, labels, meta, out_dir, blisk):
                units={"length": "mm", "angle": "rad", "time": "s"})
     doc["electrodes"] = []
     for order, (plan, label) in enumerate(zip(plans, labels)):
-        path = write_plan(plan, out / label, blisk)
+        path = write_plan(plan, out / label, blisk, cache_dir=cache_dir)
         doc["electrodes"].append({"order": order, "label": label, "plan_id": plan.plan_id,
                                   "export": str(path.parent.relative_to(out))})
     if (out / "stock.png").exists():

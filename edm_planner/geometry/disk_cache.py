@@ -1,0 +1,65 @@
+"""Results kept on disk by content: the key is a digest of everything the result depends on, code included.
+
+What the electrode cache (:mod:`.electrode_cache`) and the workpiece deviation cache
+(:func:`.mesh_deviation.cached_channel_mesh_deviation`) share: a key (sha256 of a JSON document that names
+the format, the inputs and every source file of the package, :func:`~edm_planner.environment.package_sources_digest`),
+files written whole or not at all (a temporary file, then a rename, so a reader never meets half a file),
+and the least recently used files removed beyond a count. A cache that cannot be written costs the
+computation only, never the answer: callers log and go on.
+"""
+
+import functools
+import hashlib
+import json
+import os
+import pathlib
+
+from ..environment import package_sources_digest
+
+
+@functools.cache
+def code_digest():
+    """The package's sources digest, read once per process: the code this process runs."""
+    return package_sources_digest()
+
+
+def content_key(doc):
+    """Hex sha256 of ``doc`` (JSON, keys sorted) with the package's sources digest added as ``"code"``."""
+    doc = dict(doc, code=code_digest())
+    return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def write_whole(path, write):
+    """``write(file)`` into a temporary file next to ``path``, then renamed to it: whole or not at all."""
+    path = pathlib.Path(path)
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as out:
+            write(out)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def mark_used(path):
+    """Touch ``path``: the most recently used file is kept longest."""
+    try:
+        os.utime(path)
+    except OSError:                                  # removed by another process meanwhile
+        pass
+
+
+def forget_oldest(folder, pattern, keep):
+    """Remove the files of ``folder`` matching ``pattern`` beyond the ``keep`` most recently used."""
+    def used(path):
+        try:
+            return path.stat().st_mtime
+        except OSError:                              # removed by another process meanwhile
+            return float("inf")
+
+    for old in sorted(pathlib.Path(folder).glob(pattern), key=used, reverse=True)[keep:]:
+        try:
+            old.unlink()
+        except OSError:                              # another process removed it first
+            pass
