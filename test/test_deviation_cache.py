@@ -9,17 +9,13 @@ an answer. Units: mm.
 import json
 import logging
 
-import numpy as np
-import trimesh
-
-from edm_planner.errors import ErrorCode
 from edm_planner.geometry import disk_cache
 from edm_planner.geometry.loader import load_geometry
 from edm_planner.geometry.mesh_deviation import cached_channel_mesh_deviation, channel_mesh_deviation
-from edm_planner.planning.plan import AXIS_NAMES, Plan, PlanMetrics, PlanOptions
 from edm_planner.records.plan_export import write_plan
 
 from conftest import REPO
+from plan_samples import failed_box_plan
 
 CHANNEL = 3
 
@@ -81,10 +77,7 @@ def test_an_unreadable_or_unwritable_cache_measures_again(tmp_path, default_geom
 
 def test_an_export_with_the_cache_is_the_export_without(tmp_path, default_geometry):
     g = default_geometry
-    plan = Plan(plan_id="cache-1", error_code=ErrorCode.INFEASIBLE, message="no path", geometry_id=g.geometry_id,
-                channel=CHANNEL, electrode_id="box", electrode_mesh=trimesh.creation.box((4.0, 2.0, 10.0)),
-                final_pose=np.eye(4), options=PlanOptions(), axis_names=AXIS_NAMES[5], samples=np.zeros((0, 5)),
-                poses=np.zeros((0, 4, 4)), nodes=np.zeros((0, 5)), metrics=PlanMetrics())
+    plan = failed_box_plan(g, CHANNEL, "cache-1")
     docs = []
     for name, cache in (("plain", None), ("first", tmp_path / "cache"), ("again", tmp_path / "cache")):
         doc = json.loads(write_plan(plan, tmp_path / name, g.blisk, cache_dir=cache).read_text())

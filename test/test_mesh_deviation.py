@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 import trimesh
 
-from edm_planner.errors import ErrorCode
 from edm_planner.geometry.blade_mesh import face_grid_mesh
 from edm_planner.geometry.frames import cartesian_to_cylindrical, cylindrical_to_cartesian, rotation_about_x
 from edm_planner.geometry.mesh_deviation import (RevolutionPatch, channel_mesh_deviation, channel_patches,
@@ -16,7 +15,8 @@ from edm_planner.geometry.spline_kernels import eval_many
 from edm_planner.interference import SURFACES
 from edm_planner.interference.exact_points import ProfileDistance
 from edm_planner.records.plan_export import read_plan, write_plan
-from edm_planner.planning.plan import AXIS_NAMES, Plan, PlanMetrics, PlanOptions
+
+from plan_samples import failed_box_plan
 
 #: channel of the export: not 0, so the turned meshes and surfaces are what is measured
 CHANNEL = 2
@@ -28,10 +28,7 @@ SLACK = 1e-7
 def exported(tmp_path_factory, default_geometry):
     """A failed plan written for channel 2 (write_plan writes the workpiece of failed plans too)."""
     g = default_geometry
-    plan = Plan(plan_id="deviation-1", error_code=ErrorCode.INFEASIBLE, message="no path", geometry_id=g.geometry_id,
-                channel=CHANNEL, electrode_id="box", electrode_mesh=trimesh.creation.box((4.0, 2.0, 10.0)),
-                final_pose=np.eye(4), options=PlanOptions(), axis_names=AXIS_NAMES[5], samples=np.zeros((0, 5)),
-                poses=np.zeros((0, 4, 4)), nodes=np.zeros((0, 5)), metrics=PlanMetrics())
+    plan = failed_box_plan(g, CHANNEL, "deviation-1")
     out = tmp_path_factory.mktemp("deviation") / "plan"
     write_plan(plan, out, g.blisk)
     doc = json.loads((out / "plan.json").read_text())
