@@ -11,10 +11,13 @@ computation only, never the answer: callers log and go on.
 import functools
 import hashlib
 import json
+import logging
 import os
 import pathlib
 
 from ..environment import package_sources_digest
+
+_log = logging.getLogger(__name__)
 
 
 @functools.cache
@@ -63,3 +66,26 @@ def forget_oldest(folder, pattern, keep):
             old.unlink()
         except OSError:                              # another process removed it first
             pass
+
+
+def get_or_make(path, read, make, write, *, keep, what):
+    """The result cached at ``path``, else ``make()``, written there for the next call.
+
+    ``read(path)`` returns the result, or None where the file is missing or unusable (it logs why);
+    ``write(file, result)`` writes it into a binary file. A hit marks the file used; a new file is
+    written whole and its folder kept to the ``keep`` most recently used files of its suffix. A cache
+    that cannot be written costs only the computation: logged as ``what``.
+    """
+    path = pathlib.Path(path)
+    result = read(path)
+    if result is not None:
+        mark_used(path)
+        return result
+    result = make()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_whole(path, lambda out: write(out, result))
+        forget_oldest(path.parent, f"*{path.suffix}", keep)
+    except OSError as exc:
+        _log.warning("%s cache %s: not written (%s); computed on every call", what, path.parent, exc)
+    return result

@@ -22,7 +22,7 @@ import zipfile
 import numpy as np
 import trimesh
 
-from .disk_cache import content_key, forget_oldest, mark_used, write_whole
+from .disk_cache import content_key, get_or_make, write_whole
 from .electrode import Electrode, ElectrodeDesign, design_electrodes
 
 _log = logging.getLogger(__name__)
@@ -53,24 +53,18 @@ def cached_design(blisk, design=None, *, cache_dir, only=None, keep=KEEP):
     """
     if not cache_dir:
         return design_electrodes(blisk, design, only=only)
-    folder = pathlib.Path(cache_dir) / "electrodes"
-    path = folder / f"{design_key(blisk, design, only)[:32]}.npz"
-    electrodes = read_electrodes(path)
-    if electrodes is not None:
-        mark_used(path)
-        return electrodes
-    electrodes = design_electrodes(blisk, design, only=only)
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        write_electrodes(path, electrodes)
-        forget_oldest(folder, "*.npz", keep)
-    except OSError as exc:
-        _log.warning("electrode cache %s: not written (%s); the electrodes are designed on every call", folder, exc)
-    return electrodes
+    path = pathlib.Path(cache_dir) / "electrodes" / f"{design_key(blisk, design, only)[:32]}.npz"
+    return get_or_make(path, read_electrodes, lambda: design_electrodes(blisk, design, only=only),
+                       _write_arrays, keep=keep, what="electrode")
 
 
 def write_electrodes(path, electrodes):
     """Write electrodes to ``path`` (.npz) whole: a temporary file in the same folder, then a rename."""
+    write_whole(path, lambda out: _write_arrays(out, electrodes))
+
+
+def _write_arrays(out, electrodes):
+    """The electrodes' arrays into the binary file ``out`` (a file object: savez adds no suffix)."""
     arrays = {"format": np.array(FORMAT), "ids": np.array([e.electrode_id for e in electrodes])}
     for i, e in enumerate(electrodes):
         arrays[f"vertices_{i}"] = np.asarray(e.mesh.vertices, dtype=np.float64)
@@ -78,7 +72,7 @@ def write_electrodes(path, electrodes):
         arrays[f"pose_{i}"] = np.asarray(e.final_pose, dtype=np.float64)
         for name in SAMPLE_SETS:
             arrays[f"{name}_{i}"] = np.asarray(e.samples[name], dtype=np.float64)
-    write_whole(path, lambda out: np.savez(out, **arrays))      # a file object: savez adds no suffix
+    np.savez(out, **arrays)
 
 
 def read_electrodes(path):

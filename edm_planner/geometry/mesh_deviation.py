@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..errors import EdmError, ErrorCode
-from .disk_cache import content_key, forget_oldest, mark_used, write_whole
+from .disk_cache import content_key, get_or_make
 from .frames import rotation_about_x
 from .spline_kernels import eval_many, kernel_net
 
@@ -425,26 +425,27 @@ def cached_channel_mesh_deviation(blisk, channel=0, resolution=0.5, float32=True
         return channel_mesh_deviation(blisk, channel, resolution, meshes, float32, subdivisions)
     key = content_key({"format": CACHE_FORMAT, "blisk": blisk.to_dict(), "channel": int(channel),
                        "resolution": float(resolution), "float32": bool(float32), "subdivisions": int(subdivisions)})
-    folder = pathlib.Path(cache_dir) / "mesh_deviation"
-    path = folder / f"{key[:32]}.json"
+    return get_or_make(pathlib.Path(cache_dir) / "mesh_deviation" / f"{key[:32]}.json", _read_deviation,
+                       lambda: channel_mesh_deviation(blisk, channel, resolution, meshes, float32, subdivisions),
+                       _write_deviation, keep=CACHE_KEEP, what="mesh deviation")
+
+
+def _read_deviation(path):
+    """The deviation cached in ``path``; None when it is missing, of another format or unreadable (logged)."""
     try:
         doc = json.loads(path.read_text())
         if doc["format"] == CACHE_FORMAT:
-            out = {label: SurfaceDeviation(**dict(d, at_into_channel=tuple(d["at_into_channel"]),
-                                                  at_into_material=tuple(d["at_into_material"])))
-                   for label, d in doc["surfaces"].items()}
-            mark_used(path)
-            return out
+            return {label: SurfaceDeviation(**dict(d, at_into_channel=tuple(d["at_into_channel"]),
+                                                   at_into_material=tuple(d["at_into_material"])))
+                    for label, d in doc["surfaces"].items()}
     except FileNotFoundError:
         pass
     except (OSError, ValueError, KeyError, TypeError) as exc:
         _log.warning("mesh deviation cache %s: unreadable (%s); measuring again", path, exc)
-    out = channel_mesh_deviation(blisk, channel, resolution, meshes, float32, subdivisions)
-    text = json.dumps({"format": CACHE_FORMAT, "surfaces": {label: d.to_dict() for label, d in out.items()}})
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        write_whole(path, lambda f: f.write(text.encode()))
-        forget_oldest(folder, "*.json", CACHE_KEEP)
-    except OSError as exc:
-        _log.warning("mesh deviation cache %s: not written (%s); measured on every export", folder, exc)
-    return out
+    return None
+
+
+def _write_deviation(out, deviation):
+    """The deviation as JSON into the binary file ``out``."""
+    out.write(json.dumps({"format": CACHE_FORMAT,
+                          "surfaces": {label: d.to_dict() for label, d in deviation.items()}}).encode())
