@@ -25,10 +25,12 @@ from scipy.spatial.transform import Rotation
 
 from edm_planner.geometry.frames import cylindrical_to_cartesian, rotation_about_x
 from edm_planner.geometry.loader import load_geometry
+from edm_planner.geometry.spline_kernels import new_work
 from edm_planner.interference import SURFACES
 from edm_planner.interference import exact_solvers, fast, field_query
 from edm_planner.interference.exact_points import ExactChannelDistance, ProfileDistance
 from edm_planner.interference.fast import ACCURATE_WITHIN, FastChannelField, spline_surface_eval
+from edm_planner.interference.field_params import named_exact
 
 from conftest import CONFIG
 
@@ -163,6 +165,34 @@ def test_nearest_start_is_the_kd_tree_nearest_sample(default):
         got = np.array([exact_solvers._nearest_start(face, a * scale[face, 0], r * scale[face, 1], samples, scale, box,
                                             start, items) for a, r in q])
         np.testing.assert_allclose(np.linalg.norm(samples[face][got] - q, axis=1), d_ref, rtol=0, atol=1e-12)
+
+
+def test_side_test_decided_by_the_lines_is_newtons_side(field):
+    """The side test (``_wall_angle``) answers from the (x, r) lines' angles where they decide, else by Newton:
+    where they decide, Newton puts the point on the same side, and the whole test is Newton's side everywhere."""
+    channel_angle, *_, params, shape, tables = field._plain_args(0)
+    params, shape, tables = named_exact(params, shape, tables)
+    rng = np.random.default_rng(17)
+    # near the walls (within 2 mm) and anywhere in the grid's box
+    near = np.array([(x, *exact_solvers._channel_coordinates(x, y, z, channel_angle, params))
+                     for x, y, z in field.error_sample_points(1500, seed=17)])
+    box = np.column_stack([rng.uniform(params.x0, params.x0 + (shape.nx - 1) * params.hx, 1500),
+                           rng.uniform(params.r0, params.r0 + (shape.nr - 1) * params.hr, 1500),
+                           rng.uniform(params.t0, params.t0 + (shape.nt - 1) * params.ht, 1500)])
+    work = new_work()
+    decided_count = 0
+    for x, rho, th in np.concatenate([near, box]):
+        for face in (0, 1):
+            th_w = th - params.pitch if face == 1 else th
+            decided, in_face, th_face = exact_solvers._table_angle(face, x, rho, th_w, params, shape.nx, shape.nr,
+                                                                   tables.line_theta, tables.line_inside)
+            newton_in_face, newton_th_face = exact_solvers._newton_angle(face, x, rho, tables, work)
+            newton = exact_solvers._behind(face, th_w, newton_th_face, newton_in_face, params.pitch)
+            if decided:
+                decided_count += 1
+                assert exact_solvers._behind(face, th_w, th_face, in_face, params.pitch) == newton, (face, x, rho, th)
+            assert exact_solvers._blade_behind(face, x, rho, th, params, shape, tables, work) == newton
+    assert decided_count > 3000                  # of 6000: the lines decide most points, so the test tests them
 
 
 def test_numba_exact_solver_is_never_farther_than_the_exact_method(field, exact):
