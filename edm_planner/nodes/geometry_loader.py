@@ -49,7 +49,7 @@ from ..geometry.blisk import CHANNEL_SURFACES
 from ..geometry.loader import FileLimits, GeometryMemo, load_geometry
 from ..ros.runtime import spin_node
 from ..ros.shared import LATCHED, config_directory
-from ..ros.conversions import error_code, matrix_to_pose, mesh_marker, mesh_to_msg, summary_to_msg
+from ..ros.conversions import error_code, matrices_to_poses, mesh_marker, mesh_to_msg, summary_to_msg
 
 #: QoS of data that late joiners need (like tf_static)
 #: the kinds of file with a size limit, each a parameter max_<kind>_bytes
@@ -182,7 +182,7 @@ class GeometryLoaderNode(Node):
         msg.surfaces = [mesh_to_msg(meshes[label]) for label in CHANNEL_SURFACES]
         msg.electrode_ids = [e.electrode_id for e in geometry.electrodes]
         msg.electrodes = [mesh_to_msg(e.mesh) for e in geometry.electrodes]
-        msg.electrode_final_poses = [matrix_to_pose(e.final_pose) for e in geometry.electrodes]
+        msg.electrode_final_poses = matrices_to_poses([e.final_pose for e in geometry.electrodes])
         self.geometry_pub.publish(msg)
         markers = MarkerArray()
         for i, label in enumerate(CHANNEL_SURFACES):

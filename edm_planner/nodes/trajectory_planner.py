@@ -85,7 +85,7 @@ from ..records.plan_export import write_plan
 from ..records.set_files import write_set, write_stored_set
 from ..records.store import (PlanStoreError, cycle_from_record, plan_to_stored, request_key, roughing_to_stored,
                              stored_to_plan)
-from ..ros.conversions import cycle_fields, design_override, error_code, machining_figures, matrix_to_pose
+from ..ros.conversions import cycle_fields, design_override, error_code, machining_figures, matrices_to_poses
 from ..ros.runtime import answer, declare_plan_store, default_machine_file, end_canceled, spin_node
 from ..roughing import RoughingOptions, plan_roughing, roughing_plan_id
 from ..ros.shared import LATCHED
@@ -142,7 +142,7 @@ def axis_path_msg(axis_names, samples):
 def pose_array_msg(poses, frame_id):
     msg = PoseArray()
     msg.header.frame_id = frame_id
-    msg.poses = [matrix_to_pose(p) for p in poses]
+    msg.poses = matrices_to_poses(poses)
     return msg
 
 

@@ -36,7 +36,7 @@ from ...environment import configure_process
 # this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
 configure_process()
 
-from ...ros.conversions import matrix_to_pose
+from ...ros.conversions import matrices_to_poses
 from ...ros.dds import loopback_unless_told
 from ...ros.runtime import enable_stack_dumps
 from ..geometry_loader import GeometryLoaderNode
@@ -121,7 +121,7 @@ def check_interference_round_trip(nodes, offsets, repeat=7):
     ch.fast                                                  # field built before timing
     final = next(iter(ch.electrodes.values()))[1]
     req = CheckInterference.Request(geometry_id=gid, method=CheckInterference.Request.METHOD_FAST)
-    req.poses = [matrix_to_pose(p) for p in poses_about(final, offsets)]
+    req.poses = matrices_to_poses(poses_about(final, offsets))
     ms, response = _median_call_ms(client, CheckInterference, "check_interference", req, repeat)
     if response.error_code.val != 0 or len(response.clearances) != len(offsets):
         raise RuntimeError(f"CheckInterference failed: {response.message}")
