@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import shutil
+import zlib
 
 import numpy as np
 import pytest
@@ -105,6 +106,33 @@ def test_round_trip_keeps_every_number(planned):
     # the axis values reproduce the poses under the documented convention
     np.testing.assert_allclose(axes_to_poses(r.axis_names, r.axes, r.final_pose, 0, g.blisk.pitch), r.poses,
                                atol=1e-9)
+
+
+def test_electrode_stl_is_kept_by_content_and_written_the_same(planned, tmp_path, caplog):
+    """With a cache directory electrode.stl's text is formatted once per mesh: later exports read it back,
+    byte for byte trimesh's ASCII STL; a damaged cache file is formatted and written again."""
+    g, plan, out = planned
+    reference = (out / "electrode.stl").read_bytes()         # written without a cache
+    assert reference == trimesh.exchange.stl.export_stl_ascii(plan.electrode_mesh).encode()
+    cache = tmp_path / "cache"
+    write_plan(plan, tmp_path / "first", g.blisk, cache_dir=cache)
+    kept = list((cache / "electrode_stl").glob("*.stl.z"))
+    assert len(kept) == 1
+    stamp = kept[0].stat().st_mtime_ns
+    write_plan(plan, tmp_path / "second", g.blisk, cache_dir=cache)
+    assert kept[0].stat().st_mtime_ns >= stamp and list((cache / "electrode_stl").glob("*.stl.z")) == kept
+    for name in ("first", "second"):
+        assert (tmp_path / name / "electrode.stl").read_bytes() == reference
+    kept[0].write_bytes(b"not zlib")
+    with caplog.at_level("WARNING"):
+        write_plan(plan, tmp_path / "third", g.blisk, cache_dir=cache)
+    assert "unreadable" in caplog.text
+    assert (tmp_path / "third" / "electrode.stl").read_bytes() == reference
+    assert zlib.decompress(kept[0].read_bytes()) == reference
+    other = plan.electrode_mesh.copy()
+    other.vertices[0, 0] += 1e-9                               # another mesh: another entry
+    write_plan(dataclasses.replace(plan, electrode_mesh=other), tmp_path / "fourth", g.blisk, cache_dir=cache)
+    assert len(list((cache / "electrode_stl").glob("*.stl.z"))) == 2
 
 
 def test_workpiece_surfaces_are_recoverable(planned):
