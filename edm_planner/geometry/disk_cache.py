@@ -1,11 +1,12 @@
 """Results kept on disk by content: the key is a digest of everything the result depends on, code included.
 
-What the electrode cache (:mod:`.electrode_cache`) and the workpiece deviation cache
-(:func:`.mesh_deviation.cached_channel_mesh_deviation`) share: a key (sha256 of a JSON document that names
-the format, the inputs and every source file of the package, :func:`~edm_planner.environment.package_sources_digest`),
+What the electrode cache (:mod:`.electrode_cache`), the workpiece deviation cache
+(:func:`.mesh_deviation.cached_channel_mesh_deviation`) and the electrode.stl text cache
+(``records.plan_export._electrode_stl``) share: a key (sha256 of a JSON document that names the format,
+the inputs and every source file of the package, :func:`~edm_planner.environment.package_sources_digest`),
 files written whole or not at all (a temporary file, then a rename, so a reader never meets half a file),
 and the least recently used files removed beyond a count. A cache that cannot be written costs the
-computation only, never the answer: callers log and go on.
+computation only, never the answer: :func:`get_or_make` logs it and returns the result.
 """
 
 import functools
