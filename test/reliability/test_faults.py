@@ -292,7 +292,8 @@ def test_the_checker_killed_while_checking_recovers_with_the_latched_geometry(ce
 
 @pytest.mark.slow
 def test_a_pending_execute_plan_of_a_killed_bridge_is_detected_and_a_restarted_bridge_answers_it(cell):
-    from edm_planner.nodes.programs.demo import Bringup, _call
+    from edm_planner.nodes.programs.bringup import Bringup
+    from edm_planner.nodes.programs.demo_steps import _call
 
     # the latched plan is another one (answered from the store, published again); a bridge of its own (a
     # cell controller's bring-up, as make demo's) reads the first plan from the store, then times it: killed

@@ -1,6 +1,7 @@
 """Programs that bring the nodes up and drive them over DDS (rclpy); each runs with ``python -m``.
 
-* :mod:`.demo` -- ``make demo``: the four nodes, one channel of the default blisk planned, a summary, plots;
+* :mod:`.demo` -- ``make demo``: the four nodes, one channel of the default blisk planned, a summary, plots
+  (its steps in :mod:`.demo_steps`; :mod:`.bringup` starts the nodes as processes);
 * :mod:`.soak` -- ``make soak``: thousands of calls from two clients, memory and latency;
 * :mod:`.crash_drill` -- a node killed mid-call and what the others do (Fast DDS transports);
 * :mod:`.service_bench` -- the service round trips of ``make bench`` (nodes in its process, JSON out), which

@@ -1,6 +1,6 @@
 """``make demo``: the whole product once, as a cell controller drives it over DDS.
 
-Starts the four nodes as separate processes (launch-free bring-up), then
+Starts the four nodes as separate processes (launch-free bring-up, :mod:`.bringup`), then
 LoadGeometry (the built-in default blisk) -> the PlanElectrodeSet action
 (channel 0; its feedback printed as lines: one per candidate or piece change
 or 10 %) -> the ExecutePlan action per electrode (``--follow``: followed in
@@ -22,388 +22,18 @@ run finds the set in the plan store.
 """
 
 import argparse
-import csv
-import json
-import math
 import os
 import pathlib
-import shutil
 import signal
-import subprocess
 import sys
-import threading
-import time
-
-import numpy as np
-import rclpy
-from action_msgs.msg import GoalStatus
-from edm_planner_msgs.action import ExecutePlan, PlanElectrodeSet
-from edm_planner_msgs.msg import AxisPoint, BliskGeometry, ElectrodeDesign
-from edm_planner_msgs.srv import CheckInterference, LoadGeometry
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.signals import SignalHandlerOptions
-from trajectory_msgs.msg import JointTrajectory
 
 from ...environment import configure_process
 
 # this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
 configure_process()
 
-from ...geometry.frames import rotation_about_x
-from ...interference import SURFACES as SURFACE_NAMES
-from ...ros.shared import LATCHED, config_directory
-from ...records.plan_export import read_plan
-from ...ros.action_client import LockedActionClient
-from ...ros.conversions import msg_to_mesh
 from ...ros.dds import use_loopback_udp
-from ...ros.runtime import enable_stack_dumps
-
-NODES = ("geometry_loader", "interference_checker", "trajectory_planner", "axis_bridge")
-TRAJECTORY_TOPIC = "/edm_controller/joint_trajectory"
-
-
-class Bringup:
-    """The nodes as OS processes through their console entry points; logs in ``log_dir``."""
-
-    def __init__(self, log_dir, params=None):
-        self.log_dir = pathlib.Path(log_dir)
-        self.log_dir.mkdir(parents=True, exist_ok=True)
-        self.params = params or {}
-        self.procs = {}
-
-    def start(self, names=NODES):
-        bin_dir = pathlib.Path(sys.prefix) / "bin"
-        for name in names:
-            # the cell's parameters file (what launch/edm_cell.launch.py passes), then the demo's own
-            cmd = [str(bin_dir / name), "--ros-args", "--params-file", str(config_directory() / "edm_cell.yaml")]
-            cmd += [x for k, v in self.params.get(name, {}).items() for x in ("-p", f"{k}:={v}")]
-            log = open(self.log_dir / f"{name}.log", "w")
-            self.procs[name] = (subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=os.environ.copy(),
-                                                 start_new_session=True), log)
-
-    def check_alive(self):
-        for name, (proc, _) in self.procs.items():
-            if proc.poll() is not None:
-                raise RuntimeError(f"node {name} exited with {proc.returncode}; see {self.log_dir / name}.log")
-
-    def stop(self):
-        for proc, _ in self.procs.values():
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-        for proc, log in self.procs.values():
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-            log.close()
-        self.procs = {}
-
-
-class Step:
-    """Prints a numbered step and its duration."""
-
-    count = 0
-
-    def __init__(self, text):
-        Step.count += 1
-        self.text = text
-
-    def __enter__(self):
-        print(f"[{Step.count}] {self.text} ...", flush=True)
-        self.t0 = time.perf_counter()
-        return self
-
-    def __exit__(self, kind, *rest):
-        if kind is None:
-            print(f"    done in {time.perf_counter() - self.t0:.1f} s", flush=True)
-
-
-def _call(node, srv_type, name, request, timeout, bringup):
-    client = node.create_client(srv_type, name)
-    deadline = time.monotonic() + timeout
-    while not client.wait_for_service(timeout_sec=0.5):
-        bringup.check_alive()
-        if time.monotonic() > deadline:
-            raise RuntimeError(f"service {name} not available after {timeout:.0f} s")
-    future = client.call_async(request)
-    while not future.done():
-        bringup.check_alive()
-        if time.monotonic() > deadline:
-            raise RuntimeError(f"service {name} did not answer within {timeout:.0f} s")
-        time.sleep(0.02)
-    node.destroy_client(client)
-    return future.result()
-
-
-def _action(node, action_type, name, goal, timeout, bringup, on_feedback=None):
-    """Send an action goal and wait for its result (every wait with a deadline, the nodes checked alive).
-
-    Returns (status, result). Interrupted (Ctrl-C), the goal is cancelled before the exception goes on.
-    """
-
-    client = LockedActionClient(node, action_type, name)
-    deadline = time.monotonic() + timeout
-
-    def wait(future, what):
-        while not future.done():
-            bringup.check_alive()
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"action {name}: {what} not within {timeout:.0f} s")
-            time.sleep(0.02)
-        return future.result()
-
-    try:
-        while not client.wait_for_server(timeout_sec=0.5):
-            bringup.check_alive()
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"action server {name} not available after {timeout:.0f} s")
-        handle = wait(client.send_goal_async(goal, feedback_callback=(
-            None if on_feedback is None else lambda m: on_feedback(m.feedback))), "goal response")
-        if not handle.accepted:
-            raise RuntimeError(f"action {name}: goal rejected (see the node's log)")
-        try:
-            response = wait(handle.get_result_async(), "result")
-        except KeyboardInterrupt:
-            cancel = handle.cancel_goal_async()
-            end = time.monotonic() + 5.0
-            while not cancel.done() and time.monotonic() < end:
-                time.sleep(0.02)
-            raise
-        return response.status, response.result
-    finally:
-        client.destroy()
-
-
-class SetFeedbackLines:
-    """PlanElectrodeSet feedback as lines: one per candidate or piece change, or 10 % advance."""
-
-    def __init__(self, stream=None):
-        self.stream = stream or sys.stdout
-        self.where, self.fraction, self.count = None, -1.0, 0
-
-    def __call__(self, fb):
-        where = (fb.candidate, fb.piece)
-        if where == self.where and fb.fraction < self.fraction + 0.1:
-            return
-        self.where, self.fraction = where, fb.fraction
-        self.count += 1
-        left = "time left ?" if math.isnan(fb.estimated_time_left) else f"time left ~{fb.estimated_time_left:.0f} s"
-        parts = [f"candidate {fb.candidate_index + 1}/{fb.candidate_count} {fb.candidate}" if fb.candidate else "",
-                 f"piece {fb.piece_index + 1}/{fb.piece_count} {fb.piece}" if fb.piece else "",
-                 f"step {fb.sizing_step} {fb.sizing_parameter}" if fb.sizing_parameter else ""]
-        print(f"    {100 * fb.fraction:5.1f} %  {fb.elapsed:6.1f} s  {left:<17} "
-              f"{', '.join(p for p in parts if p) or fb.message[:80]}", file=self.stream, flush=True)
-
-
-class FollowLines:
-    """ExecutePlan feedback as lines: one per phase change or 10 % of the trajectory."""
-
-    def __init__(self):
-        self.phase, self.fraction = None, -1.0
-
-    def __call__(self, fb):
-        if fb.phase == self.phase and fb.fraction < self.fraction + 0.1:
-            return
-        self.phase, self.fraction = fb.phase, fb.fraction
-        print(f"    {fb.executed_time:7.1f} of {fb.duration:.1f} s  {fb.phase} (channel {fb.channel})", flush=True)
-
-
-def _require(response, what):
-    ok = response.success if hasattr(response, "success") else response.error_code.val == 0
-    if not ok:
-        raise RuntimeError(f"{what} failed (error code {response.error_code.val}): {response.message}")
-    return response
-
-
-def _design_msg(d):
-    """An ElectrodeDesign message of a design dict (set.json): the CheckInterference override of one electrode."""
-
-    nan = float("nan")
-    rng = d.get("axial_range") or [nan, nan]
-    return ElectrodeDesign(discharge_gap=float(d["discharge_gap"]),
-                           circumferential_reduction=float(d["circumferential_reduction"]),
-                           reduction_side=d["reduction_side"], radial_reduction=float(d["radial_reduction"]),
-                           axial_start=float(rng[0]), axial_end=float(rng[1]), split=d["split"],
-                           split_fraction=float(d["split_fraction"]), split_overlap=float(d["split_overlap"]))
-
-
-def _cycle_csv(path):
-    """(axis names, (n, k) axis values, phases) of an export's cycle.csv."""
-
-    with open(path) as f:
-        rows = list(csv.reader(f))
-    axes = [h for h in rows[0][2:] if h.endswith(("_mm", "_rad"))]      # then the leg's regime
-    names = [h.split("_")[0] for h in axes]
-    return names, np.array([[float(v) for v in r[2:2 + len(axes)]] for r in rows[1:]]), [r[0] for r in rows[1:]]
-
-
-def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=False):
-    # heavy and optional: matplotlib (about 0.5 s to import) for the pictures only
-    from ...records import plots
-
-    share = pathlib.Path(sys.prefix) / "share" / "edm_planner" / "config"
-
-    # Ctrl-C must reach the demo as KeyboardInterrupt (stop the nodes, exit 130), not shut rclpy down
-    # under a service call in flight (rclpy's own handler), which would read as a failed step
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-    node = rclpy.create_node("edm_demo_cell_controller")
-    received = []
-    node.create_subscription(JointTrajectory, TRAJECTORY_TOPIC, received.append, 10)
-    geometries = {}           # the loader's latched geometry: the channel surfaces for the 3D view
-    node.create_subscription(BliskGeometry, "geometry",
-                             lambda m: geometries.__setitem__(m.summary.geometry_id, m), LATCHED)
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
-    try:
-        with Step("LoadGeometry: the built-in default blisk"):
-            geo = _require(_call(node, LoadGeometry, "load_geometry",
-                                 LoadGeometry.Request(path=str(share / "default_blisk.yaml")), timeout, bringup),
-                           "LoadGeometry")
-            s = geo.summary
-            print(f"    {s.name or 'default blisk'}: {s.blade_count} blades, id {geo.geometry_id[:12]}, "
-                  f"min channel width {s.min_channel_width:.3f} mm; no electrode design in the file")
-        with Step(f"PlanElectrodeSet: channel {channel}, the planner designs the electrode set"):
-            # the action: its feedback (candidate, piece, sizing step, percent, time left) printed as lines
-            _, res = _action(node, PlanElectrodeSet, "plan_electrode_set",
-                             PlanElectrodeSet.Goal(geometry_id=geo.geometry_id, channel=channel, write_export=True),
-                             set_timeout, bringup, SetFeedbackLines())
-            if not res.plan_ids:
-                _require(res, "PlanElectrodeSet")
-            for c in res.candidates:
-                print(f"    candidate {c.name:<19} {c.status:<11} {c.reason[:110]}")
-            if not res.success:
-                print(f"    NOT TO THE TOLERANCE: {res.message[:300]}")
-            print(f"    set {res.set_id}: {len(res.plan_ids)} electrode(s) {list(res.electrode_labels)}, "
-                  f"designed in {res.planning_time:.1f} s")
-            for e in res.process:
-                print(f"    process {e.label:<12} {e.regime:<6} {e.condition_code:<5} {e.removed_volume:7.0f} mm^3 "
-                      f"[{e.removed_volume_lower:.0f}, {e.removed_volume_upper:.0f}]  eroding {e.eroding_time / 3600:5.2f} h"
-                      f"  wear {e.worst_face_wear:.3f} mm/channel on its worst face (limit {e.wear_limit:g} mm): "
-                      f"{e.electrodes_per_channel} per channel, {e.electrodes_per_blisk} per blisk")
-            if res.process:
-                print(f"    process (model estimates, config/machine.yaml): {res.channel_removed_volume:.0f} mm^3 and "
-                      f"{res.channel_eroding_time / 3600:.2f} h eroding per channel, "
-                      f"{res.blisk_eroding_time / 3600:.1f} h for the blisk; Liu et al. 2024 took 4.07-4.25 h per "
-                      f"channel on another blisk and machine")
-        set_doc = json.loads((pathlib.Path(res.export_path) / "set.json").read_text())
-        delivered = next(c for c in set_doc["candidates"] if c["name"] == set_doc["delivered"])
-        designs = {p["label"]: p for p in delivered["pieces"]}
-        trajectories = []
-        for i, label in enumerate(res.electrode_labels):
-            with Step(f"ExecutePlan: set {res.set_id}, electrode {i} ({label}): its whole cycle"):
-                before = len(received)
-                # the action; with --follow its feedback along the trajectory, in real time
-                status, ex = _action(node, ExecutePlan, "execute_plan",
-                                     ExecutePlan.Goal(plan_id=res.set_id, channel=channel, dry_run=False,
-                                                      electrode=i, follow=follow),
-                                     timeout + (3 * 3600.0 if follow else 0.0), bringup,
-                                     FollowLines() if follow else None)
-                _require(ex, "ExecutePlan")
-                if status != GoalStatus.STATUS_SUCCEEDED:
-                    raise RuntimeError(f"ExecutePlan ended with goal status {status}: {ex.message}")
-                deadline = time.monotonic() + 30.0
-                while len(received) == before:
-                    if time.monotonic() > deadline:
-                        raise RuntimeError(f"no JointTrajectory received on {TRAJECTORY_TOPIC}")
-                    time.sleep(0.05)
-                trajectories.append((label, ex, received[-1]))
-                phases = ", ".join(f"{n} {t:.1f} s" for n, t in zip(ex.phase_names, ex.phase_start_times))
-                print(f"    {ex.point_count} points, {ex.duration:.1f} s ({ex.duration / 3600:.2f} h; generator on "
-                      f"{ex.eroding_time / 3600:.2f} h in {sorted(set(r for r in ex.regime_names if r))}); "
-                      f"phases from: {phases}")
-                if ex.next_electrode:
-                    print(f"    then change the tool: {ex.next_electrode}")
-        clearances = {}
-        for label, plan_id in zip(res.electrode_labels, res.plan_ids):
-            with Step(f"CheckInterference: the {label} electrode along its whole cycle (fast method)"):
-                names, q, _ = _cycle_csv(pathlib.Path(res.export_path) / label / "cycle.csv")
-                req = CheckInterference.Request(geometry_id=geo.geometry_id, channel=channel,
-                                                electrode_id=designs[label]["electrode_id"],
-                                                electrode=_design_msg(designs[label]["design"]),
-                                                method=CheckInterference.Request.METHOD_FAST, axis_names=names)
-                req.axis_values = [AxisPoint(positions=row) for row in q.tolist()]
-                chk = _require(_call(node, CheckInterference, "check_interference", req, timeout, bringup),
-                               "CheckInterference")
-                clearances[label] = np.array([[c.suction, c.pressure, c.hub, c.shroud] for c in chk.clearances])
-                print(f"    {len(q)} samples; smallest {clearances[label].min():.4f} mm (fast value, error bound "
-                      f"{chk.error_bound * 1e3:.1f} um)")
-        with Step(f"plots and 3D view in {out_dir}"):
-
-            label0, ex0, traj = trajectories[0]
-            t = np.array([p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in traj.points])
-            qt = np.array([p.positions for p in traj.points])
-            plots.axis_curves(t, qt, list(traj.joint_names), out_dir / "axes_vs_time.png", "time [s]",
-                              f"The {label0} electrode's cycle as sent to the controller ({ex0.duration:.1f} s)",
-                              marks=list(zip(ex0.phase_names, ex0.phase_start_times)))
-            names, q, phase = _cycle_csv(pathlib.Path(res.export_path) / label0 / "cycle.csv")
-            plots.axis_curves(np.arange(len(q)), q, names, out_dir / "axes_vs_index.png", "sample index",
-                              f"Axis values along the {label0} electrode's certified cycle (cf. Huang Fig. 7)",
-                              marks=[(p, i) for i, p in enumerate(phase) if i == 0 or phase[i - 1] != p])
-            margin = float(set_doc["candidates"][0]["pieces"][0]["design"]["discharge_gap"]) - 0.02
-            allc = np.vstack(list(clearances.values()))
-            plots.clearance_plot(np.arange(len(allc)), allc, [margin] * 4, out_dir / "clearance.png",
-                                 f"fast values of CheckInterference, exact within +-{chk.error_bound * 1e3:.1f} um",
-                                 xlabel="cycle sample (" + ", then ".join(clearances) + ")")
-            deadline = time.monotonic() + 30.0
-            while geo.geometry_id not in geometries:          # latched: here already, or on its way
-                if time.monotonic() > deadline:
-                    raise RuntimeError("the geometry was not received on the latched 'geometry' topic")
-                time.sleep(0.05)
-            published = geometries[geo.geometry_id]
-            turn = rotation_about_x(channel * published.summary.blade_pitch)      # published: channel 0
-            surfaces = {label: msg_to_mesh(m).apply_transform(turn)
-                        for label, m in zip(published.surface_labels, published.surfaces)}
-            stock_png = pathlib.Path(res.export_path) / "stock.png"
-            for name in ("stock.png", "stock.glb", "process.png"):   # the removal proof, the process
-                if (stock_png.parent / name).exists():
-                    shutil.copyfile(stock_png.parent / name, out_dir / name)
-            export = read_plan(pathlib.Path(res.export_path) / label0)
-            plots.channel_view(surfaces, export.electrode_mesh,
-                               export.poses, out_dir / "channel.glb", out_dir / "channel.png")
-        m = res.metrics
-        print("\nSummary")
-        print(f"  geometry     default blisk, id {geo.geometry_id[:12]}, channel {channel}, no design given")
-        print(f"  set          {set_doc['delivered']}: {', '.join(res.electrode_labels)} "
-              f"({'machines the channel to the tolerance' if res.success else 'NOT to the tolerance'}), "
-              f"designed in {res.planning_time:.1f} s, set {res.set_id}, whole-blisk program {res.program_id}")
-        print(f"  feed clearance [mm]{'':<27}" + "".join(f"{n:>10}" for n in SURFACE_NAMES))
-        for label, metrics in zip(res.electrode_labels, m):
-            for i, (kind, name) in enumerate((("certified lower bound, whole path", "clearance_lower_bound"),
-                                              ("exact minimum, vertices at samples", "clearance_exact"))):
-                print(f"  {label if i == 0 else '':<12} {kind:<34}"
-                      + "".join(f"{getattr(metrics, f'{name}_{n}'):>10.4f}" for n in SURFACE_NAMES))
-        removal = delivered.get("removal", {})
-        print(f"  stock left   exact at wall samples {removal.get('accuracy', {}).get('sample_spacing_mm')} mm "
-              f"apart, tolerance {removal.get('tolerance_mm')} mm:")
-        for name, f in sorted(removal.get("surfaces", {}).items(),
-                              key=lambda kv: SURFACE_NAMES.index(kv[0])):
-            print(f"    {name:<9} max {f['stock_max_mm']:.4f} mm, mean {f['stock_mean_mm']:.4f} mm, "
-                  f"{100 * f['area_fraction_above_tolerance']:.2f} % of the area above "
-                  f"({100 * (f['area_fraction_beyond_inherent'] or 0):.2f} % beyond the corner rounding), "
-                  f"overcut {f['overcut_max_mm']:.4f} mm")
-        allowance = delivered.get("roughing_allowance")
-        if allowance:
-            shares = ", ".join(f"{k} {100 * v['share_within_band']:.1f} %" for k, v in allowance["surfaces"].items())
-            print(f"  roughing     allowance {allowance['allowance_mm']:g} +- {allowance['band_mm']:g} mm "
-                  f"{'uniform' if allowance['uniform'] else 'NOT uniform'} ({shares} of the judged area)")
-        for note in delivered.get("roughing_notes", []):
-            print(f"               {note[:160]}")
-        for label, ex, _ in trajectories:
-            print(f"  {label:<12} cycle {ex.duration:.1f} s = {ex.duration / 3600:.2f} h (generator on "
-                  f"{ex.eroding_time / 3600:.2f} h, {ex.removed_volume:.0f} mm^3), {ex.point_count} points")
-        if res.process:
-            print(f"  process      {res.channel_eroding_time / 3600:.2f} h eroding per channel, "
-                  f"{res.blisk_eroding_time / 3600:.1f} h for the blisk (model estimates, config/machine.yaml; "
-                  f"Liu et al. 2024: 4.07-4.25 h per channel on another blisk); process.png")
-        print(f"  written      {res.export_path} (set.json, stock.png, process.png, one export per electrode), "
-              f"{out_dir}/*.png (process.png: time and wear), {out_dir}/channel.glb")
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
+from .bringup import NODES, Bringup, Step
 
 
 def main(argv=None):
@@ -419,13 +49,18 @@ def main(argv=None):
     signal.signal(signal.SIGTERM, signal.default_int_handler)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     use_loopback_udp()                      # again: the line above undid what importing edm_planner.nodes did
-    enable_stack_dumps()
     os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 80))
     out = pathlib.Path(args.out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     bringup = Bringup(out / "logs", params={"trajectory_planner": {"export_dir": str(out / "plans")}})
     status = 0
     try:
+        # the nodes' modules imported in the server process while this one imports rclpy, the messages and
+        # the core (about 2 s each)
+        bringup.preload()
+        from ...ros.runtime import enable_stack_dumps
+        from .demo_steps import run
+        enable_stack_dumps()
         with Step(f"starting {', '.join(NODES)} (logs in {out / 'logs'})"):
             bringup.start()
         run(out, args.channel, bringup, follow=args.follow)

@@ -45,7 +45,7 @@ configure_process()
 from ...geometry.loader import parse_document
 from ...ros.shared import config_directory
 from ...ros.dds import loopback_unless_told
-from .demo import Bringup
+from .bringup import Bringup
 
 _log = logging.getLogger(__name__)
 

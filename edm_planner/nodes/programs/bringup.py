@@ -1,0 +1,152 @@
+"""Bringing the four nodes up as OS processes, and the numbered steps a program prints.
+
+Each node is its own OS process with its own DDS participant, as ``ros2 launch`` starts them, but forked from
+one preloaded server (:mod:`multiprocessing`'s forkserver) rather than started from its console script: the
+server imports the nodes' modules once (rclpy, numpy, SciPy, trimesh, numba and the core: about 3 s of CPU
+per process here) and every node starts from a copy of it. With four nodes on two cores, separate imports
+cost about 4 s of wall time at every bring-up (``make demo``, ``make soak``). Nothing that starts a thread,
+an OpenMP pool or a DDS participant runs in the server before it forks: importing does none of that.
+
+This module is light on purpose (no numpy, no messages, no core), so that a program can start the server
+first and import its own modules while the server imports the nodes'.
+"""
+
+import atexit
+import importlib
+import multiprocessing
+import multiprocessing.forkserver
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+
+from ...ros.shared import config_directory
+
+NODES = ("geometry_loader", "interference_checker", "trajectory_planner", "axis_bridge")
+
+_CONTEXT = multiprocessing.get_context("forkserver")
+
+
+def _node_modules(names):
+    return [f"edm_planner.nodes.{name}" for name in names]
+
+
+def _run_node(name, argv, environ, log_path):
+    """A forked node's process: its log as stdout and stderr, a session of its own, the caller's environment,
+    then the node's console entry point with ``argv``."""
+    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+    os.setsid()                       # its own process group: Ctrl-C reaches the program, which stops the nodes
+    os.environ.clear()
+    os.environ.update(environ)        # as at start(), not as when the server started
+    from ...ros.startup import prepare_process
+    prepare_process()                 # numba's configuration read again from that environment
+    sys.argv = [name] + list(argv)
+    raise SystemExit(importlib.import_module(_node_modules([name])[0]).main())
+
+
+class NodeProcess:
+    """A node forked by the server: the part of :class:`subprocess.Popen` that programs and tests use."""
+
+    def __init__(self, process):
+        self._process = process
+
+    @property
+    def pid(self):
+        return self._process.pid
+
+    @property
+    def returncode(self):
+        """The exit code, minus the signal that ended it, or None while it runs (as ``Popen.returncode``)."""
+        return self._process.exitcode
+
+    def poll(self):
+        return self._process.exitcode
+
+    def wait(self, timeout=None):
+        self._process.join(timeout)
+        if self._process.exitcode is None:
+            raise subprocess.TimeoutExpired(self._process.name, timeout)
+        return self._process.exitcode
+
+    def send_signal(self, sig):
+        try:
+            os.kill(self.pid, sig)
+        except ProcessLookupError:    # ended since the caller looked
+            pass
+
+
+class Bringup:
+    """The nodes as OS processes forked from the preloaded server; each node's log in ``log_dir``."""
+
+    def __init__(self, log_dir, params=None):
+        self.log_dir = pathlib.Path(log_dir)
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        self.params = params or {}
+        self.procs = {}
+        # before multiprocessing's own exit handler, which would wait for nodes still running
+        atexit.register(self.stop)
+
+    @staticmethod
+    def preload(names=NODES):
+        """Start the server importing the nodes' modules, and return at once (``start`` waits for it).
+
+        The server is one per process and keeps the modules of the first call; a later start of other nodes
+        imports theirs in the node's own process.
+        """
+        multiprocessing.forkserver.set_forkserver_preload(_node_modules(names))
+        multiprocessing.forkserver.ensure_running()
+
+    def start(self, names=NODES):
+        self.preload(names)
+        for name in names:
+            # the cell's parameters file (what launch/edm_cell.launch.py passes), then the program's own
+            argv = ["--ros-args", "--params-file", str(config_directory() / "edm_cell.yaml")]
+            argv += [x for k, v in self.params.get(name, {}).items() for x in ("-p", f"{k}:={v}")]
+            process = _CONTEXT.Process(target=_run_node, name=name, daemon=False,
+                                       args=(name, argv, dict(os.environ), str(self.log_dir / f"{name}.log")))
+            process.start()
+            self.procs[name] = (NodeProcess(process), None)
+
+    def check_alive(self):
+        for name, (proc, _) in self.procs.items():
+            if proc.poll() is not None:
+                raise RuntimeError(f"node {name} exited with {proc.returncode}; see {self.log_dir / name}.log")
+
+    def stop(self):
+        for proc, _ in self.procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        for proc, _ in self.procs.values():
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                try:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                except ProcessLookupError:        # not yet in a session of its own
+                    proc.send_signal(signal.SIGKILL)
+                proc.wait()
+        self.procs = {}
+
+
+class Step:
+    """Prints a numbered step and its duration."""
+
+    count = 0
+
+    def __init__(self, text):
+        Step.count += 1
+        self.text = text
+
+    def __enter__(self):
+        print(f"[{Step.count}] {self.text} ...", flush=True)
+        self.t0 = time.perf_counter()
+        return self
+
+    def __exit__(self, kind, *rest):
+        if kind is None:
+            print(f"    done in {time.perf_counter() - self.t0:.1f} s", flush=True)

@@ -1,0 +1,59 @@
+"""``make demo``'s and ``make soak``'s bring-up: nodes forked from the preloaded server, over real DDS."""
+
+import os
+import signal
+
+import pytest
+import rclpy
+from edm_planner_msgs.msg import ErrorCode
+from edm_planner_msgs.srv import ExecutePlan
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+
+from edm_planner.nodes.programs.bringup import Bringup
+from ros_harness import wait_for
+
+
+def test_a_forked_node_runs_in_the_environment_of_start_answers_stops_and_is_reported_when_killed(tmp_path,
+                                                                                                   monkeypatch):
+    # the server starts on one domain; the node is started on another and must be found there
+    base = int(os.environ["ROS_DOMAIN_ID"])
+    server_domain, node_domain = (base + 157) % 232, (base + 171) % 232
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(server_domain))
+    Bringup.preload(("axis_bridge",))
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(node_domain))
+    bringup = Bringup(tmp_path / "logs")
+    context = Context()
+    rclpy.init(context=context, domain_id=node_domain)
+    executor = SingleThreadedExecutor(context=context)
+    client_node = Node("bringup_client", context=context)
+    executor.add_node(client_node)
+    try:
+        bringup.start(("axis_bridge",))
+        bringup.check_alive()
+        client = client_node.create_client(ExecutePlan, "execute_plan")
+        assert client.wait_for_service(timeout_sec=120), (tmp_path / "logs" / "axis_bridge.log").read_text()
+        future = client.call_async(ExecutePlan.Request(plan_id="nothing", dry_run=True))
+        executor.spin_until_future_complete(future, timeout_sec=60)
+        res = wait_for(future, 1, "ExecutePlan")
+        assert res.error_code.val == ErrorCode.UNKNOWN_ID and "nothing" in res.message
+        log = (tmp_path / "logs" / "axis_bridge.log").read_text()
+        assert "machine 'edm5_reference'" in log, log         # its stdout and stderr are its log
+        proc = bringup.procs["axis_bridge"][0]
+        bringup.stop()                                        # SIGINT: the node's own clean exit
+        assert proc.returncode == 0, log
+        assert bringup.procs == {}
+
+        bringup.start(("axis_bridge",))
+        proc = bringup.procs["axis_bridge"][0]
+        assert client.wait_for_service(timeout_sec=120)       # up again
+        os.killpg(proc.pid, signal.SIGKILL)                   # a session of its own: its group is itself
+        assert proc.wait(timeout=30) == -signal.SIGKILL
+        with pytest.raises(RuntimeError, match="node axis_bridge exited with -9"):
+            bringup.check_alive()
+    finally:
+        bringup.stop()
+        executor.shutdown()
+        client_node.destroy_node()
+        rclpy.try_shutdown(context=context)
