@@ -57,6 +57,19 @@ def test_a_cached_design_is_the_design_bit_for_bit_and_is_read_back(tmp_path, de
     _same(fresh, cached_design(blisk, design, cache_dir=None))
 
 
+def test_a_loaded_geometry_keeps_its_electrodes_in_the_cache_of_its_load(tmp_path, default_geometry):
+    """The file's default electrode, designed on first use, is kept where the load keeps what is slow to read:
+    the next process that loads the file (the geometry loader restarted, the next demo) reads it."""
+    path = REPO / "config" / "default_blisk.yaml"
+    first = load_geometry(path, cache_dir=tmp_path)
+    assert first.designed is None and _files(tmp_path) == []
+    _same(design_electrodes(default_geometry.blisk, default_geometry.design), first.electrodes)
+    [kept] = _files(tmp_path)
+    write_electrodes(kept, [])                      # what the file holds is what is answered
+    assert load_geometry(path, cache_dir=tmp_path).electrodes == []
+    assert load_geometry(path, cache_dir=tmp_path / "other").electrodes[0].electrode_id == "main"
+
+
 def test_the_key_covers_the_blisk_the_design_the_electrode_and_the_code(tmp_path, default_geometry, monkeypatch):
     blisk, design = default_geometry.blisk, rear_design()
     key = design_key(blisk, design)

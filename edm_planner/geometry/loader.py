@@ -55,7 +55,8 @@ from ..errors import ErrorCode, GeometryError, GeometryFileError
 from .as_measured import MeasuredBlades, channel_blisk, channel_field_key, channel_groups, to_blade_zero
 from .blisk import Blisk, mesh_slice_overlap, validate_profiles
 from .centerline import channel_centerline
-from .electrode import ElectrodeDesign, design_electrodes
+from .electrode import ElectrodeDesign
+from .electrode_cache import cached_design
 from .file_size import check_file_size, too_large_message
 from .mesh_read import load_blade_mesh
 from .mesh_sections import mesh_to_sections_with_report
@@ -203,6 +204,9 @@ class LoadedGeometry:
     channel: int = None
     #: the key of this geometry's fast field in the field cache: ``geometry_id``, or per channel as measured
     field_key: str = None
+    #: where electrodes designed on first use are kept and found (:func:`~.electrode_cache.cached_design`;
+    #: None: designed every time)
+    cache_dir: str = None
 
     def __post_init__(self):
         if self.field_key is None:
@@ -232,13 +236,13 @@ class LoadedGeometry:
             if blisk is self.blisk:
                 if self._nominal is None:
                     self._nominal = LoadedGeometry(self.geometry_id, blisk, self.design, None, self.source,
-                                                   design_given=self.design_given,
+                                                   design_given=self.design_given, cache_dir=self.cache_dir,
                                                    field_key=self.measured.nominal_field_key)
                 self._channels[channel] = self._nominal
             else:
                 self._channels[channel] = LoadedGeometry(
                     self.geometry_id, blisk, self.design, None, self.source, design_given=self.design_given,
-                    channel=channel, field_key=channel_field_key(self.geometry_id, channel))
+                    channel=channel, field_key=channel_field_key(self.geometry_id, channel), cache_dir=self.cache_dir)
         return self._channels[channel]
 
     def channel_groups(self):
@@ -253,7 +257,7 @@ class LoadedGeometry:
     def electrodes(self):
         """The electrodes of ``design`` (list of Electrode), designed on first use where the load left them."""
         if self.designed is None:
-            self.designed = design_electrodes(self.blisk, self.design)
+            self.designed = cached_design(self.blisk, self.design, cache_dir=self.cache_dir)
         return self.designed
 
     def electrode(self, electrode_id=""):
@@ -573,9 +577,9 @@ def _loaded(doc, files, source, blisk, **found):
     design = ElectrodeDesign.from_dict(doc.get("electrode"))
     design_given = doc.get("electrode") is not None
     # a design the file gives is checked now (its errors belong to the load); the default one on first use
-    electrodes = design_electrodes(blisk, design) if design_given else None
+    electrodes = cached_design(blisk, design, cache_dir=files.cache_dir) if design_given else None
     geometry = LoadedGeometry(_geometry_digest(doc, files.hashes), blisk, design, electrodes, source, design_given=design_given,
-                              measured=measured, **found)
+                              measured=measured, cache_dir=files.cache_dir, **found)
     if measured is not None:
         _channels_as_measured(geometry, checks)
     return geometry
