@@ -135,3 +135,18 @@ def test_a_plan_with_a_cached_electrode_is_the_plan_with_a_designed_one(tmp_path
     assert plans[0].plan_id == plans[1].plan_id
     assert np.array_equal(plans[0].samples, plans[1].samples)
     assert plans[0].metrics.objfun1 == plans[1].metrics.objfun1
+
+
+def test_arrays_digest_is_the_content_of_the_arrays():
+    """The key of the caches keyed by a mesh (electrode.stl, the triangle grid): shapes, dtypes and values."""
+    v = np.arange(12.0).reshape(4, 3)
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    key = disk_cache.arrays_digest(v, f)
+    assert disk_cache.arrays_digest(np.asfortranarray(v), f.copy()) == key          # layout is not content
+    assert disk_cache.arrays_digest(v.reshape(3, 4), f) != key
+    assert disk_cache.arrays_digest(v.astype(np.float32), f) != key
+    assert disk_cache.arrays_digest(v, f.astype(np.int32)) != key
+    w = v.copy()
+    w[3, 2] = np.nextafter(w[3, 2], np.inf)
+    assert disk_cache.arrays_digest(w, f) != key
+    assert disk_cache.arrays_digest(f, v) != key

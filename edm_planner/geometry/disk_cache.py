@@ -16,6 +16,8 @@ import logging
 import os
 import pathlib
 
+import numpy as np
+
 from ..environment import package_sources_digest
 
 _log = logging.getLogger(__name__)
@@ -31,6 +33,16 @@ def content_key(doc):
     """Hex sha256 of ``doc`` (JSON, keys sorted) with the package's sources digest added as ``"code"``."""
     doc = dict(doc, code=code_digest())
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def arrays_digest(*arrays):
+    """Hex sha256 of arrays' shapes, dtypes and bytes (C order): a key of their content, a mesh's say."""
+    digest = hashlib.sha256()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        digest.update(f"{a.shape}{a.dtype.str}".encode())
+        digest.update(a.tobytes())
+    return digest.hexdigest()
 
 
 def write_whole(path, write):
