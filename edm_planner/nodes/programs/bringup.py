@@ -4,8 +4,11 @@ Each node is its own OS process with its own DDS participant, as ``ros2 launch``
 one preloaded server (:mod:`multiprocessing`'s forkserver) rather than started from its console script: the
 server imports the nodes' modules once (rclpy, numpy, SciPy, trimesh, numba and the core: about 3 s of CPU
 per process here) and every node starts from a copy of it. With four nodes on two cores, separate imports
-cost about 4 s of wall time at every bring-up (``make demo``, ``make soak``). Nothing that starts a thread,
-an OpenMP pool or a DDS participant runs in the server before it forks: importing does none of that.
+cost about 4 s of wall time at every bring-up (``make demo``, ``make soak``). The server only imports:
+no Python thread, OpenMP pool, rclpy context or DDS participant exists when it forks. The native threads
+the imports start are OpenBLAS's (which it shuts down and re-creates around a fork) and the two listener
+threads of LTTng-UST (ros2_tracing, loaded with rclpy): a forked node has none, so it cannot be traced
+with LTTng; a node started from its console script (``ros2 launch``) can.
 
 This module is light on purpose (no numpy, no messages, no core), so that a program can start the server
 first and import its own modules while the server imports the nodes'.
