@@ -1,4 +1,4 @@
-"""Bringing the four nodes up as OS processes, and the numbered steps a program prints.
+"""Bringing the four nodes up as OS processes.
 
 Each node is its own OS process with its own DDS participant, as ``ros2 launch`` starts them, but forked from
 one preloaded server (:mod:`multiprocessing`'s forkserver) rather than started from its console script: the
@@ -23,7 +23,6 @@ import pathlib
 import signal
 import subprocess
 import sys
-import time
 
 from ...ros.shared import config_directory
 
@@ -134,22 +133,3 @@ class Bringup:
                     proc.send_signal(signal.SIGKILL)
                 proc.wait()
         self.procs = {}
-
-
-class Step:
-    """Prints a numbered step and its duration."""
-
-    count = 0
-
-    def __init__(self, text):
-        Step.count += 1
-        self.text = text
-
-    def __enter__(self):
-        print(f"[{Step.count}] {self.text} ...", flush=True)
-        self.t0 = time.perf_counter()
-        return self
-
-    def __exit__(self, kind, *rest):
-        if kind is None:
-            print(f"    done in {time.perf_counter() - self.t0:.1f} s", flush=True)

@@ -33,7 +33,7 @@ from ...environment import configure_process
 configure_process()
 
 from ...ros.dds import use_loopback_udp
-from .bringup import NODES, Bringup, Step
+from .bringup import NODES, Bringup
 
 
 def main(argv=None):
@@ -59,7 +59,7 @@ def main(argv=None):
         # the core (about 2 s each)
         bringup.preload()
         from ...ros.runtime import enable_stack_dumps
-        from .demo_steps import run
+        from .demo_steps import Step, run
         enable_stack_dumps()
         with Step(f"starting {', '.join(NODES)} (logs in {out / 'logs'})"):
             bringup.start()

@@ -34,9 +34,27 @@ from ...ros.shared import LATCHED
 from ...records.plan_export import read_plan
 from ...ros.action_client import LockedActionClient
 from ...ros.conversions import msg_to_mesh
-from .bringup import Step
 
 TRAJECTORY_TOPIC = "/edm_controller/joint_trajectory"
+
+
+class Step:
+    """Prints a numbered step and its duration."""
+
+    count = 0
+
+    def __init__(self, text):
+        Step.count += 1
+        self.text = text
+
+    def __enter__(self):
+        print(f"[{Step.count}] {self.text} ...", flush=True)
+        self.t0 = time.perf_counter()
+        return self
+
+    def __exit__(self, kind, *rest):
+        if kind is None:
+            print(f"    done in {time.perf_counter() - self.t0:.1f} s", flush=True)
 
 
 def _call(node, srv_type, name, request, timeout, bringup):
