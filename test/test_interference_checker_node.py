@@ -262,3 +262,39 @@ def test_a_geometry_loaded_again_after_another_is_the_latest_again(system):
     while not np.allclose(latest(), GAP, atol=3e-6):
         assert time.monotonic() < deadline, "a request naming no geometry is still answered for B"
         time.sleep(0.2)
+
+
+def test_a_request_for_a_geometry_still_on_its_way_waits_for_it(system, field_cache):
+    """A checker that has received no geometry yet is asked for one: the request waits for it on the
+    latched topic (``unknown_geometry_wait``) and is answered for it once it arrives, as when a cell
+    controller calls right after LoadGeometry's answer; a geometry that never comes is UNKNOWN_ID after the
+    wait, and the message says how long it waited."""
+    ros, client, gid, final = system
+    got, ready = [], threading.Event()
+    client.create_subscription(BliskGeometry, "geometry", lambda m: (got.append(m), ready.set()), LATCHED)
+    assert ready.wait(60), "the loader's latched geometry not received"
+    # a checker of its own namespace: the loader's topic does not reach it, this test publishes its geometry
+    checker = ros.add(InterferenceCheckerNode(context=ros.context, namespace="on_its_way", parameter_overrides=[
+        Parameter("cache_dir", value=str(field_cache)), Parameter("unknown_geometry_wait", value=300.0)]))
+    service = client.create_client(CheckInterference, "/on_its_way/check_interference")
+    assert service.wait_for_service(timeout_sec=60)
+    done = threading.Event()
+    future = service.call_async(CheckInterference.Request(geometry_id=gid, poses=[matrix_to_pose(final)],
+                                                          method=CheckInterference.Request.METHOD_EXACT))
+    future.add_done_callback(lambda _: done.set())
+    deadline = time.monotonic() + 120
+    while checker.received.waiting == 0:           # the request is in the checker, waiting for its geometry
+        assert not done.is_set(), future.result().message
+        assert time.monotonic() < deadline, "the request never waited for its geometry"
+        time.sleep(0.01)
+    client.create_publisher(BliskGeometry, "/on_its_way/geometry", LATCHED).publish(got[-1])
+    assert done.wait(300), "not answered after its geometry arrived"
+    res = future.result()
+    assert res.error_code.val == ErrorCode.SUCCESS, res.message
+    np.testing.assert_allclose(clearances(res)[0], GAP, atol=3e-6)
+    assert checker.received.waiting == 0
+    # an id that never comes: UNKNOWN_ID once the wait is over
+    checker.set_parameters([Parameter("unknown_geometry_wait", value=0.5)])
+    res = ros.call(client, CheckInterference, "/on_its_way/check_interference", CheckInterference.Request(
+        geometry_id="f" * 64, poses=[matrix_to_pose(final)]), timeout=120)
+    assert res.error_code.val == ErrorCode.UNKNOWN_ID and "waited 0.5 s" in res.message, res.message

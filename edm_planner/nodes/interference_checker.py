@@ -25,6 +25,9 @@ prebuild_fast : bool
     Build the distance field as soon as a geometry arrives.
 max_designs : int
     Re-designed electrode sets kept in memory (least recently used dropped).
+unknown_geometry_wait : float
+    How long a request for a geometry id not received yet waits for it on ``geometry`` [s] (one loaded just
+    before may still be on its way).
 """
 
 import collections
@@ -55,6 +58,7 @@ from ..cnc.kinematics import AXES_5, FiveAxisKinematics
 from ..ros.runtime import answer, spin_node
 from ..ros.conversions import (design_override, error_code, msg_to_mesh, pose_to_matrix, poses_to_arrays,
                           quaternions_to_matrices)
+from ..ros.received import ReceivedGeometries
 from ..ros.shared import LATCHED
 
 
@@ -71,15 +75,16 @@ class InterferenceCheckerNode(Node):
         self.declare_parameter("paper_delta2", 0.0)
         self.declare_parameter("prebuild_fast", True)
         self.declare_parameter("max_designs", 8)
-        self.checkers = {}
+        self.declare_parameter("unknown_geometry_wait", 5.0)
         self.measured = {}                  # geometry id -> its blades as measured (MeasuredBlades) or None
         self.channel_checkers = {}          # (geometry id, channel) -> the checker of that channel's own walls
         self.designs = {}                   # geometry id -> the geometry file's electrode design
         # (geometry id, design) -> checker with those electrodes, least recently used first
         self.redesigned = collections.OrderedDict()
         self.max_designs = max(1, int(self.get_parameter("max_designs").value))
-        self.latest = None
         self._lock = threading.Lock()
+        self.received = ReceivedGeometries(self._lock)       # geometry id -> ChannelChecker
+        self.checkers = self.received.items
         self.create_subscription(BliskGeometry, "geometry", self.on_geometry, LATCHED,
                                  callback_group=MutuallyExclusiveCallbackGroup())
         self.service = self.create_service(CheckInterference, "check_interference", self.on_check,
@@ -96,10 +101,8 @@ class InterferenceCheckerNode(Node):
 
     def on_geometry(self, msg):
         gid = msg.summary.geometry_id
-        with self._lock:
-            if gid in self.checkers:            # loaded again after another: the latest once more
-                self.latest = gid
-                return
+        if self.received.again(gid):            # loaded again after another: the latest once more
+            return
         try:
             model = json.loads(msg.model_json)
             blisk = Blisk.from_dict(model)
@@ -112,10 +115,9 @@ class InterferenceCheckerNode(Node):
             self.get_logger().error(f"geometry {gid[:12]} not usable: {exc!r}")
             return
         with self._lock:
-            self.checkers[gid] = checker
             self.measured[gid] = measured
             self.designs[gid] = design
-            self.latest = gid
+        self.received.add(gid, checker)         # after its design and blades: a waiting request uses them
         self.get_logger().info(f"geometry {gid[:12]}: {blisk.blade_count} channels, "
                                f"electrodes {sorted(electrodes)}")
         if self.get_parameter("prebuild_fast").value:
@@ -151,12 +153,9 @@ class InterferenceCheckerNode(Node):
         return answer(self, "CheckInterference", self._check, request, response)
 
     def _check(self, request, response):
-        gid = request.geometry_id or self.latest
-        with self._lock:
-            checker = self.checkers.get(gid) if gid else None
-        if checker is None:
-            raise EdmError(ErrorCode.UNKNOWN_ID,
-                           f"unknown geometry id {request.geometry_id!r}; load it with the geometry_loader first")
+        # a geometry loaded just before the request may still be on its way on the latched topic
+        gid, checker = self.received.require(request.geometry_id,
+                                             float(self.get_parameter("unknown_geometry_wait").value))
         try:
             method = Method(request.method)
         except ValueError:

@@ -88,6 +88,7 @@ from ..records.store import (PlanStoreError, cycle_from_record, plan_to_stored, 
 from ..ros.conversions import cycle_fields, design_override, error_code, machining_figures, matrices_to_poses
 from ..ros.runtime import answer, declare_plan_store, default_machine_file, end_canceled, spin_node
 from ..roughing import RoughingOptions, plan_roughing, roughing_plan_id
+from ..ros.received import ReceivedGeometries
 from ..ros.shared import LATCHED
 
 
@@ -362,10 +363,8 @@ class TrajectoryPlannerNode(Node):
         stock = self.get_parameter("stock_mesh").value
         self.stock_mesh = load_stock_mesh(stock) if stock else None
         self.store, self.store_error = declare_plan_store(self)
-        self.geometries = {}
-        self.latest = None
         self._lock = threading.Lock()
-        self._arrived = threading.Condition(self._lock)      # notified when a geometry arrives
+        self.received = ReceivedGeometries(self._lock)       # geometry id -> _Prepared
         self.create_subscription(BliskGeometry, "geometry", self.on_geometry, LATCHED,
                                  callback_group=MutuallyExclusiveCallbackGroup())
         self.plan_pub = self.create_publisher(ChannelPlan, "plan", LATCHED)
@@ -386,13 +385,10 @@ class TrajectoryPlannerNode(Node):
     # -- geometry ---------------------------------------------------------------------------
     def on_geometry(self, msg):
         gid = msg.summary.geometry_id
-        with self._arrived:
-            if gid in self.geometries:          # loaded again after another: the latest once more
-                self.latest = gid
-                return
-            prepared = self.geometries[gid] = _Prepared(gid)
-            self.latest = gid
-            self._arrived.notify_all()
+        if self.received.again(gid):            # loaded again after another: the latest once more
+            return
+        prepared = _Prepared(gid)
+        self.received.add(gid, prepared)
         threading.Thread(target=self._prepare, args=(gid, msg.model_json, prepared), daemon=True).start()
 
     def _prepare(self, gid, model_json, prepared):
@@ -424,14 +420,7 @@ class TrajectoryPlannerNode(Node):
     def _geometry(self, gid, parsed_only=False):
         """The prepared geometry of a request; with ``parsed_only`` without waiting for electrodes and field."""
         # a geometry loaded just before the request may still be on its way on the latched topic
-        with self._arrived:
-            self._arrived.wait_for(lambda: (gid or self.latest) in self.geometries,
-                                   timeout=float(self.get_parameter("unknown_geometry_wait").value))
-            gid = gid or self.latest
-            prepared = self.geometries.get(gid) if gid else None
-        if prepared is None:
-            raise EdmError(ErrorCode.UNKNOWN_ID,
-                           f"unknown geometry id {gid!r}; load it with the geometry_loader first")
+        gid, prepared = self.received.require(gid, float(self.get_parameter("unknown_geometry_wait").value))
         event = prepared.parsed if parsed_only else prepared.ready
         if not event.wait(float(self.get_parameter("geometry_wait").value)):
             raise EdmError(ErrorCode.TIMEOUT, f"geometry {gid[:12]} is still being prepared")

@@ -8,6 +8,7 @@
 * :mod:`.conversions` -- messages <-> numpy and the core's types, in one place;
 * :mod:`.action_client` -- an action client that closes rclpy's goal/result race;
 * :mod:`.shared` -- the latched QoS and the config directory, which the nodes and the programs share;
+* :mod:`.received` -- the geometries a node received on the latched topic, and the bounded wait for one on its way;
 * :mod:`.startup` -- a process's set-up before ``rclpy.init``.
 
 The nodes themselves are in :mod:`edm_planner.nodes`, the programs that drive them in
