@@ -146,6 +146,29 @@ def test_a_geometry_the_topic_already_holds_is_not_published_again(shared_ros, l
     assert got == [first.geometry_id, default.geometry_id, first.geometry_id]
 
 
+def test_markers_follow_the_loads_in_order_the_last_one_latched(ros, fresh_loader):
+    """The markers are built after the answer, in a thread of their own: loads in quick succession leave the
+    last geometry's markers on the latched topic, as a late joiner (RViz started later) receives them."""
+    node, client = fresh_loader
+    for name in ("rotor37.yaml", "mesh_blisk.yaml", "default_blisk.yaml", "rotor37.yaml"):
+        assert _load(ros, client, path=name).success
+    last = node.geometries[_load(ros, client, path="rotor37.yaml").geometry_id]
+    node._marker_work.submit(lambda: None).result(timeout=120)       # every marker build before it is done
+    late = ros.add(Node("late_viewer", context=ros.context))
+    markers = []
+    late.create_subscription(MarkerArray, "geometry_markers", markers.append, LATCHED)
+    deadline = time.monotonic() + 30
+    while not markers and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert len(markers) == 1, len(markers)
+    meshes = last.blisk.channel_meshes(resolution=node.get_parameter("mesh_resolution").value)
+    channel = [m for m in markers[0].markers if m.ns == "channel"]
+    assert [len(m.points) for m in channel] == [3 * len(meshes[s].faces) for s in ("suction", "pressure", "hub",
+                                                                                     "shroud")]
+    [electrode] = [m for m in markers[0].markers if m.ns == "electrode"]
+    assert len(electrode.points) == 3 * len(last.electrodes[0].mesh.faces)
+
+
 @pytest.mark.parametrize("fields, code, words", [
     ({}, ErrorCode.INVALID_REQUEST, "exactly one"),
     ({"path": "x.yaml", "yaml_text": "blade_count: 2"}, ErrorCode.INVALID_REQUEST, "exactly one"),

@@ -23,9 +23,12 @@ Notes
 -----
 Services: ``load_geometry`` (edm_planner_msgs/LoadGeometry).
 Topics (TRANSIENT_LOCAL, depth 1): ``geometry`` (edm_planner_msgs/BliskGeometry),
-``geometry_markers`` (visualization_msgs/MarkerArray).
+``geometry_markers`` (visualization_msgs/MarkerArray). The markers (for RViz) are built and published
+after the geometry, in a thread of their own, in the order of the loads: building their 200 000 points
+takes about 1 s, which neither the LoadGeometry answer nor the node's start waits for.
 """
 
+import concurrent.futures
 import json
 import logging
 import os
@@ -82,6 +85,8 @@ class GeometryLoaderNode(Node):
         self._lock = threading.Lock()
         self.geometry_pub = self.create_publisher(BliskGeometry, "geometry", LATCHED)
         self.marker_pub = self.create_publisher(MarkerArray, "geometry_markers", LATCHED)
+        # one thread: the markers of successive loads are published in their order, the last one latched
+        self._marker_work = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="markers")
         self.load_service = self.create_service(
             LoadGeometry, "load_geometry", self.on_load_geometry,
             callback_group=MutuallyExclusiveCallbackGroup())
@@ -184,13 +189,23 @@ class GeometryLoaderNode(Node):
         msg.electrodes = [mesh_to_msg(e.mesh) for e in geometry.electrodes]
         msg.electrode_final_poses = matrices_to_poses([e.final_pose for e in geometry.electrodes])
         self.geometry_pub.publish(msg)
-        markers = MarkerArray()
-        for i, label in enumerate(CHANNEL_SURFACES):
-            markers.markers.append(mesh_marker(meshes[label], "channel", i, frame, stamp, COLOURS[label]))
-        for i, e in enumerate(geometry.electrodes):
-            markers.markers.append(mesh_marker(e.mesh, "electrode", i, frame, stamp, (0.85, 0.5, 0.2, 0.9),
-                                               pose=e.final_pose))
-        self.marker_pub.publish(markers)
+        self._marker_work.submit(self._publish_markers, meshes, geometry.electrodes, frame, stamp)
+
+    def _publish_markers(self, meshes, electrodes, frame, stamp):
+        try:
+            markers = MarkerArray()
+            for i, label in enumerate(CHANNEL_SURFACES):
+                markers.markers.append(mesh_marker(meshes[label], "channel", i, frame, stamp, COLOURS[label]))
+            for i, e in enumerate(electrodes):
+                markers.markers.append(mesh_marker(e.mesh, "electrode", i, frame, stamp, (0.85, 0.5, 0.2, 0.9),
+                                                   pose=e.final_pose))
+            self.marker_pub.publish(markers)
+        except Exception as exc:  # a viewer's markers must not take the node down
+            self.get_logger().error(f"markers not published: {exc!r}")
+
+    def destroy_node(self):
+        self._marker_work.shutdown(wait=True, cancel_futures=True)      # no publish on a destroyed node
+        return super().destroy_node()
 
 
 def main(args=None):
