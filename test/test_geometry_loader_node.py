@@ -27,10 +27,10 @@ def test_error_codes_mirror_the_message_constants():
     assert consts == {c.name: c.value for c in CoreErrorCode}
 
 
-def _loader(ros, allowed):
-    node = ros.add(GeometryLoaderNode(context=ros.context, parameter_overrides=[
+def _loader(ros, allowed, namespace=""):
+    node = ros.add(GeometryLoaderNode(context=ros.context, namespace=namespace, parameter_overrides=[
         Parameter("allowed_directories", value=[str(CONFIG), str(allowed)])]))
-    client = ros.add(Node("test_client", context=ros.context))
+    client = ros.add(Node("test_client", context=ros.context, namespace=namespace))
     return node, client
 
 
@@ -146,15 +146,16 @@ def test_a_geometry_the_topic_already_holds_is_not_published_again(shared_ros, l
     assert got == [first.geometry_id, default.geometry_id, first.geometry_id]
 
 
-def test_markers_follow_the_loads_in_order_the_last_one_latched(ros, fresh_loader):
+def test_markers_follow_the_loads_in_order_the_last_one_latched(ros, tmp_path):
     """The markers are built after the answer, in a thread of their own: loads in quick succession leave the
     last geometry's markers on the latched topic, as a late joiner (RViz started later) receives them."""
-    node, client = fresh_loader
+    # a namespace of its own: this module's shared loader publishes its markers on the same domain
+    node, client = _loader(ros, tmp_path, namespace="markers_in_order")
     for name in ("rotor37.yaml", "mesh_blisk.yaml", "default_blisk.yaml", "rotor37.yaml"):
         assert _load(ros, client, path=name).success
     last = node.geometries[_load(ros, client, path="rotor37.yaml").geometry_id]
     node._marker_work.submit(lambda: None).result(timeout=120)       # every marker build before it is done
-    late = ros.add(Node("late_viewer", context=ros.context))
+    late = ros.add(Node("late_viewer", context=ros.context, namespace="markers_in_order"))
     markers = []
     late.create_subscription(MarkerArray, "geometry_markers", markers.append, LATCHED)
     deadline = time.monotonic() + 30
