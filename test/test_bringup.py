@@ -57,3 +57,27 @@ def test_a_forked_node_runs_in_the_environment_of_start_answers_stops_and_is_rep
         executor.shutdown()
         client_node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+def test_the_server_maps_its_modules_to_files_once_for_every_forked_node(monkeypatch):
+    """rclpy's logger looks up each call's file with inspect.getframeinfo, whose first call maps every loaded
+    module to its file (0.2 s with the nodes' modules): the server does it after the nodes' imports."""
+    import subprocess
+    import sys
+
+    from edm_planner.nodes.programs import bringup
+
+    preloaded = []
+    monkeypatch.setattr(bringup.multiprocessing.forkserver, "set_forkserver_preload", preloaded.extend)
+    monkeypatch.setattr(bringup.multiprocessing.forkserver, "ensure_running", lambda: None)
+    Bringup.preload(("axis_bridge", "geometry_loader"))
+    assert preloaded == ["edm_planner.nodes.axis_bridge", "edm_planner.nodes.geometry_loader", bringup.SERVER_WARMUP]
+    # in a process of its own, as the server: after the warm-up a log call's lookup maps nothing new
+    probe = ("import importlib, inspect, sys\n"
+             f"for name in {preloaded!r}: importlib.import_module(name)\n"
+             "mapped = len(inspect.modulesbyfile)\n"
+             "inspect.getframeinfo(inspect.currentframe())\n"
+             "print(len(sys.modules), mapped, len(inspect.modulesbyfile))\n")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300, check=True)
+    modules, mapped, after = map(int, out.stdout.split())
+    assert modules > 1000 and mapped > 1000 and after == mapped, out.stdout

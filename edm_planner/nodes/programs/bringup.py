@@ -30,6 +30,9 @@ NODES = ("geometry_loader", "interference_checker", "trajectory_planner", "axis_
 
 _CONTEXT = multiprocessing.get_context("forkserver")
 
+#: imported by the server after the nodes' modules: what every process would do once (see the module)
+SERVER_WARMUP = "edm_planner.nodes.programs.server_warmup"
+
 
 def _node_modules(names):
     return [f"edm_planner.nodes.{name}" for name in names]
@@ -100,7 +103,7 @@ class Bringup:
         The server is one per process and keeps the modules of the first call; a later start of other nodes
         imports theirs in the node's own process.
         """
-        multiprocessing.forkserver.set_forkserver_preload(_node_modules(names))
+        multiprocessing.forkserver.set_forkserver_preload(_node_modules(names) + [SERVER_WARMUP])
         multiprocessing.forkserver.ensure_running()
 
     def start(self, names=NODES):
