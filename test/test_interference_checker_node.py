@@ -298,3 +298,13 @@ def test_a_request_for_a_geometry_still_on_its_way_waits_for_it(system, field_ca
     res = ros.call(client, CheckInterference, "/on_its_way/check_interference", CheckInterference.Request(
         geometry_id="f" * 64, poses=[matrix_to_pose(final)]), timeout=120)
     assert res.error_code.val == ErrorCode.UNKNOWN_ID and "waited 0.5 s" in res.message, res.message
+    # a geometry the checker cannot use: its requests are told so, a request naming none too (it is the
+    # latest), not answered for the geometry before it
+    checker.set_parameters([Parameter("unknown_geometry_wait", value=300.0)])
+    broken = BliskGeometry(model_json="{not json")
+    broken.summary.geometry_id = "e" * 64
+    client.create_publisher(BliskGeometry, "/on_its_way/geometry", LATCHED).publish(broken)
+    for named in ("e" * 64, ""):                    # the first waits for it to arrive
+        res = ros.call(client, CheckInterference, "/on_its_way/check_interference", CheckInterference.Request(
+            geometry_id=named, poses=[matrix_to_pose(final)]), timeout=300)
+        assert res.error_code.val == ErrorCode.INVALID_GEOMETRY and "not usable" in res.message, res.message

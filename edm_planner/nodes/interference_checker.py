@@ -113,6 +113,7 @@ class InterferenceCheckerNode(Node):
             measured = MeasuredBlades.from_dict(model.get("as_measured"))
         except Exception as exc:  # a geometry we cannot use must not take the node down
             self.get_logger().error(f"geometry {gid[:12]} not usable: {exc!r}")
+            self.received.add(gid, exc)         # the latest: its requests are told, not answered for another
             return
         with self._lock:
             self.measured[gid] = measured
@@ -156,6 +157,8 @@ class InterferenceCheckerNode(Node):
         # a geometry loaded just before the request may still be on its way on the latched topic
         gid, checker = self.received.require(request.geometry_id,
                                              float(self.get_parameter("unknown_geometry_wait").value))
+        if isinstance(checker, Exception):
+            raise EdmError(ErrorCode.INVALID_GEOMETRY, f"geometry {gid[:12]} not usable: {checker}")
         try:
             method = Method(request.method)
         except ValueError:
