@@ -81,3 +81,27 @@ def test_the_server_maps_its_modules_to_files_once_for_every_forked_node(monkeyp
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300, check=True)
     modules, mapped, after = map(int, out.stdout.split())
     assert modules > 1000 and mapped > 1000 and after == mapped, out.stdout
+
+
+def test_the_bridge_loads_its_timing_solver_while_it_waits_and_the_timing_module_alone_does_not():
+    """Every ExecutePlan times with toppra (0.8 s to import, matplotlib with it): the axis bridge imports it in
+    a thread of its own once it is up, not in its first request (nor in make demo's fork server, whose imports
+    every node waits for); ``cnc.timing`` alone stays light for the programs that never time."""
+    import subprocess
+    import sys
+
+    probe = ("import sys, rclpy\n"
+             "from edm_planner.nodes.axis_bridge import AxisBridgeNode\n"
+             "before = 'toppra.algorithm' in sys.modules\n"
+             "rclpy.init()\n"
+             "node = AxisBridgeNode()\n"
+             "assert node.solver_loaded.wait(300)\n"
+             "print(before, 'toppra.algorithm' in sys.modules, 'toppra.constraint' in sys.modules)\n"
+             "node.destroy_node()\n"
+             "rclpy.shutdown()\n")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300,
+                         env=dict(os.environ))
+    assert out.returncode == 0 and out.stdout.split() == ["False", "True", "True"], out.stdout + out.stderr
+    timing = subprocess.run([sys.executable, "-c", "import sys, edm_planner.cnc.timing; "
+                             "print('toppra' in sys.modules)"], capture_output=True, text=True, timeout=300)
+    assert timing.stdout.split() == ["False"], timing.stdout + timing.stderr

@@ -158,6 +158,19 @@ def path_parameter(samples, axis_names, rotary_lever):
     return np.concatenate([[0.0], np.cumsum(steps)])
 
 
+def load_solver():
+    """toppra and the parts of it the timing uses, imported on first call: ``(toppra, algorithm, constraint)``.
+
+    Heavy (0.8 to 1.5 s: its Cython extension, its solvers and matplotlib, which toppra imports), so not at
+    this module's import: only the timing needs it. A process that times every request (the axis bridge)
+    calls it at its start instead of at its first request.
+    """
+    import toppra
+    import toppra.algorithm as algorithm
+    import toppra.constraint as constraint
+    return toppra, algorithm, constraint
+
+
 def time_parameterize(samples, axis_names, limits, options=TimingOptions()):
     """Time-optimal trajectory along the spline through ``samples``, at rest at both ends.
 
@@ -180,10 +193,7 @@ def time_parameterize(samples, axis_names, limits, options=TimingOptions()):
         INVALID_REQUEST for a malformed path, INFEASIBLE when toppra finds no
         parameterisation or a position leaves the travel (axis, value and time named).
     """
-    # heavy: importing toppra takes about 1.5 s (its Cython extension and solvers); only the timing needs it
-    import toppra
-    import toppra.algorithm as algo
-    import toppra.constraint as constraint
+    toppra, algo, constraint = load_solver()
 
     q = np.asanyarray(samples, dtype=np.float64)
     axis_names = tuple(axis_names)

@@ -112,6 +112,7 @@ from ..geometry.frames import is_rigid, pose_difference, rotation_about_x
 from ..cnc.config import LINEAR, load_machine
 from ..cnc.nc import trajectory_csv
 from ..cnc.post import ProgramRun, write_program
+from ..cnc.timing import load_solver
 from ..cnc.trajectory import check_samples_travel, plan_trajectory, time_run
 from ..machining.program import PlanCycle, program_runs
 from ..paths import export_path, open_for_export
@@ -243,6 +244,18 @@ class AxisBridgeNode(Node):
         self.action = ActionServer(self, ExecutePlanAction, "execute_plan", self.execute_goal,
                                    goal_callback=self.on_goal, cancel_callback=self.on_cancel,
                                    callback_group=ReentrantCallbackGroup())
+        # every ExecutePlan times its trajectory with toppra (0.8 s to import, matplotlib with it): imported
+        # while the node waits for its first request, not in it (a request meanwhile waits for the import)
+        self.solver_loaded = threading.Event()
+        threading.Thread(target=self._load_solver, name="load_solver", daemon=True).start()
+
+    def _load_solver(self):
+        try:
+            load_solver()
+        except Exception as exc:  # reported again, with its code, by the first request that times
+            self.get_logger().error(f"the timing solver (toppra) did not load: {exc!r}")
+        finally:
+            self.solver_loaded.set()
 
     def on_plan(self, msg):
         try:
