@@ -83,6 +83,31 @@ def test_the_server_maps_its_modules_to_files_once_for_every_forked_node(monkeyp
     assert modules > 1000 and mapped > 1000 and after == mapped, out.stdout
 
 
+def test_the_server_fills_numbas_registries_once_and_starts_no_kernel_threads():
+    """numba fills its target's registries on the first kernel a process loads (0.3 s of CPU): the server's
+    warm-up does it for every forked node; it runs no kernel, so numba's thread pool starts in the node."""
+    import subprocess
+    import sys
+
+    from edm_planner.nodes.programs import bringup
+
+    probe = ("import importlib, numpy as np\n"
+             "from numba.core.registry import cpu_target\n"
+             "from numba.np.ufunc import parallel\n"
+             f"for name in {bringup._node_modules(bringup.NODES)!r}: importlib.import_module(name)\n"
+             "ctx = cpu_target.target_context\n"
+             "before = len(ctx._registries)\n"
+             f"importlib.import_module({bringup.SERVER_WARMUP!r})\n"
+             "warm, threads = len(ctx._registries), parallel._is_initialized\n"
+             "from edm_planner.interference.wall_features import triangle_grid\n"
+             "triangle_grid(np.eye(3), np.array([[0, 1, 2]]))\n"        # a kernel of the package, from the cache
+             "print(before, warm, len(ctx._registries), threads)\n")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    before, warm, after, threads = out.stdout.split()
+    assert int(warm) > int(before) and after == warm and threads == "False", out.stdout
+
+
 def test_the_bridge_loads_its_timing_solver_while_it_waits_and_the_timing_module_alone_does_not():
     """Every ExecutePlan times with toppra (0.8 s to import, matplotlib with it): the axis bridge imports it in
     a thread of its own once it is up, not in its first request (nor in make demo's fork server, whose imports
@@ -99,8 +124,7 @@ def test_the_bridge_loads_its_timing_solver_while_it_waits_and_the_timing_module
              "print(before, 'toppra.algorithm' in sys.modules, 'toppra.constraint' in sys.modules)\n"
              "node.destroy_node()\n"
              "rclpy.shutdown()\n")
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300,
-                         env=dict(os.environ))
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and out.stdout.split() == ["False", "True", "True"], out.stdout + out.stderr
     timing = subprocess.run([sys.executable, "-c", "import sys, edm_planner.cnc.timing; "
                              "print('toppra' in sys.modules)"], capture_output=True, text=True, timeout=300)

@@ -34,7 +34,7 @@ def test_the_cached_deviation_is_the_measured_one_and_is_read_back(tmp_path, def
     assert _files(tmp_path) == [path]
     # the second answer comes from the file: what the file holds is what is answered
     doc = json.loads(path.read_text())
-    doc["surfaces"]["hub"]["into_channel"] = 12.5
+    doc["value"]["hub"]["into_channel"] = 12.5
     path.write_text(json.dumps(doc))
     assert cached_channel_mesh_deviation(blisk, CHANNEL, 0.5, cache_dir=tmp_path)["hub"].into_channel == 12.5
     # without a cache directory: measured, nothing written
@@ -62,11 +62,11 @@ def test_an_unreadable_or_unwritable_cache_measures_again(tmp_path, default_geom
     blisk = default_geometry.blisk
     measured = cached_channel_mesh_deviation(blisk, CHANNEL, 0.5, cache_dir=tmp_path)
     [path] = _files(tmp_path)
-    path.write_text('{"format": "edm_planner.mesh_deviation/1", "surf')          # cut short
+    path.write_text('{"format": "edm_planner.mesh_deviation/2", "val')          # cut short
     with caplog.at_level(logging.WARNING):
         assert cached_channel_mesh_deviation(blisk, CHANNEL, 0.5, cache_dir=tmp_path) == measured
-    assert "unreadable" in caplog.text
-    assert json.loads(path.read_text())["surfaces"]["suction"]["triangles"] > 0, "the file is written again"
+    assert "unusable" in caplog.text
+    assert json.loads(path.read_text())["value"]["suction"]["triangles"] > 0, "the file is written again"
     blocked = tmp_path / "a file"
     blocked.write_text("not a directory")
     caplog.clear()

@@ -40,7 +40,7 @@ def test_the_summary_of_a_second_load_is_read_from_the_cache_value_for_value(tmp
     assert read["min_channel_width"] > 0 and read["electrode_count"] == 1
     # what the file holds is what is answered
     doc = json.loads(kept.read_text())
-    doc["summary"]["centerline_length"] = 123.5
+    doc["value"]["centerline_length"] = 123.5
     kept.write_text(json.dumps(doc))
     assert load_geometry(path, cache_dir=tmp_path).summary()["centerline_length"] == 123.5
 
@@ -49,12 +49,13 @@ def test_an_unusable_summary_file_is_computed_again_and_replaced(tmp_path, caplo
     path = CONFIG / "default_blisk.yaml"
     computed = load_geometry(path, cache_dir=tmp_path).summary()
     [kept] = _files(tmp_path)
-    for broken in ('{"format": "edm_planner.summary/1", "summa', '{"format": "another/9", "summary": {}}'):
+    for broken in ('{"format": "edm_planner.summary/2", "val', '{"format": "another/9", "value": {}}',
+                   '{"format": "edm_planner.summary/2", "value": [1, 2]}'):
         kept.write_text(broken)
-        with caplog.at_level(logging.WARNING, logger="edm_planner.geometry.loader"):
+        with caplog.at_level(logging.WARNING, logger="edm_planner.geometry.disk_cache"):
             assert load_geometry(path, cache_dir=tmp_path).summary() == computed
         assert "computed again" in caplog.text
-        assert json.loads(kept.read_text())["summary"] == json.loads(json.dumps(computed))
+        assert json.loads(kept.read_text())["value"] == json.loads(json.dumps(computed))
         caplog.clear()
 
 

@@ -102,3 +102,32 @@ def get_or_make(path, read, make, write, *, keep, what):
     except OSError as exc:
         _log.warning("%s cache %s: not written (%s); computed on every call", what, path.parent, exc)
     return result
+
+
+def get_or_make_json(path, make, *, fmt, keep, what, encode=None, decode=None):
+    """:func:`get_or_make` for a result kept as JSON: ``{"format": fmt, "value": encode(result)}``.
+
+    ``decode(value)`` makes the result of a file's value again (it may raise KeyError, TypeError or
+    ValueError for a value it cannot use); a file that is unreadable, of another format or not
+    decodable is logged as ``what`` and the result computed again and written over it. JSON keeps every
+    float bit for bit (``repr`` round-trips).
+    """
+    encode = encode or (lambda result: result)
+    decode = decode or (lambda value: value)
+
+    def read(file):
+        try:
+            doc = json.loads(pathlib.Path(file).read_text(encoding="utf-8"))
+            if not isinstance(doc, dict) or doc.get("format") != fmt:
+                raise ValueError(f"not of format {fmt}")
+            return decode(doc["value"])
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            _log.warning("%s cache %s: unusable (%s); computed again", what, file, exc)
+            return None
+
+    def write(out, result):
+        out.write(json.dumps({"format": fmt, "value": encode(result)}, sort_keys=True).encode())
+
+    return get_or_make(path, read, make, write, keep=keep, what=what)

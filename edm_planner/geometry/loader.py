@@ -55,7 +55,7 @@ from ..errors import ErrorCode, GeometryError, GeometryFileError
 from .as_measured import MeasuredBlades, channel_blisk, channel_field_key, channel_groups, to_blade_zero
 from .blisk import Blisk, mesh_slice_overlap, validate_profiles
 from .centerline import channel_centerline
-from .disk_cache import arrays_digest, content_key, get_or_make
+from .disk_cache import arrays_digest, content_key, get_or_make_json
 from .electrode import ElectrodeDesign
 from .electrode_cache import cached_design
 from .file_size import check_file_size, too_large_message
@@ -280,8 +280,8 @@ class LoadedGeometry:
         if self._summary is None:
             if self.cache_dir:
                 path = pathlib.Path(self.cache_dir) / "summary" / f"{summary_key(self)[:32]}.json"
-                self._summary = get_or_make(path, _read_summary, self._figures, _write_summary,
-                                            keep=SUMMARY_KEEP, what="geometry summary")
+                self._summary = get_or_make_json(path, self._figures, fmt=SUMMARY_FORMAT, keep=SUMMARY_KEEP,
+                                                 what="geometry summary", decode=_summary_value)
             else:
                 self._summary = self._figures()
         return dict(self._summary)
@@ -713,7 +713,7 @@ def _scan(spec, blisk, files):
 
 
 #: the summary cache's file format; a new one computes every summary again
-SUMMARY_FORMAT = "edm_planner.summary/1"
+SUMMARY_FORMAT = "edm_planner.summary/2"
 #: summaries kept in the cache directory (the least recently used go first); one is about 1 kB
 SUMMARY_KEEP = 256
 
@@ -726,24 +726,11 @@ def summary_key(geometry):
                         "electrodes": [arrays_digest(e.mesh.vertices, e.mesh.faces) for e in geometry.electrodes]})
 
 
-def _read_summary(path):
-    """A cached summary, or None where the file is missing or unusable (then computed again and replaced)."""
-    try:
-        doc = json.loads(pathlib.Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        return None
-    except (OSError, ValueError) as exc:
-        _log.warning("geometry summary cache %s: unusable (%s); computed again", path, exc)
-        return None
-    if not isinstance(doc, dict) or doc.get("format") != SUMMARY_FORMAT or not isinstance(doc.get("summary"), dict):
-        _log.warning("geometry summary cache %s: not a summary of format %s; computed again", path, SUMMARY_FORMAT)
-        return None
-    return doc["summary"]
-
-
-def _write_summary(out, summary):
-    # JSON keeps every float bit for bit (repr round-trips)
-    out.write(json.dumps({"format": SUMMARY_FORMAT, "summary": summary}, sort_keys=True).encode())
+def _summary_value(value):
+    """A cached summary's value, checked: the summary's dict."""
+    if not isinstance(value, dict):
+        raise TypeError(f"a summary is a mapping, not {type(value).__name__}")
+    return value
 
 
 class GeometryMemo:

@@ -18,7 +18,6 @@ Both are upper bounds, from samples plus a bound on what lies between them
 (:func:`surface_deviation`). Units: mm.
 """
 
-import json
 import logging
 import pathlib
 from dataclasses import asdict, dataclass
@@ -26,7 +25,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..errors import EdmError, ErrorCode
-from .disk_cache import content_key, get_or_make
+from .disk_cache import content_key, get_or_make_json
 from .frames import rotation_about_x
 from .spline_kernels import eval_many, kernel_net
 
@@ -406,7 +405,7 @@ def channel_mesh_deviation(blisk, channel=0, resolution=0.5, meshes=None, float3
 
 
 #: the deviation cache's file format: a new one measures every channel again
-CACHE_FORMAT = "edm_planner.mesh_deviation/1"
+CACHE_FORMAT = "edm_planner.mesh_deviation/2"
 #: deviation files kept (the least recently used go first); each is about 2 kB
 CACHE_KEEP = 256
 
@@ -425,27 +424,15 @@ def cached_channel_mesh_deviation(blisk, channel=0, resolution=0.5, float32=True
         return channel_mesh_deviation(blisk, channel, resolution, meshes, float32, subdivisions)
     key = content_key({"format": CACHE_FORMAT, "blisk": blisk.to_dict(), "channel": int(channel),
                        "resolution": float(resolution), "float32": bool(float32), "subdivisions": int(subdivisions)})
-    return get_or_make(pathlib.Path(cache_dir) / "mesh_deviation" / f"{key[:32]}.json", _read_deviation,
-                       lambda: channel_mesh_deviation(blisk, channel, resolution, meshes, float32, subdivisions),
-                       _write_deviation, keep=CACHE_KEEP, what="mesh deviation")
+    return get_or_make_json(pathlib.Path(cache_dir) / "mesh_deviation" / f"{key[:32]}.json",
+                            lambda: channel_mesh_deviation(blisk, channel, resolution, meshes, float32, subdivisions),
+                            fmt=CACHE_FORMAT, keep=CACHE_KEEP, what="mesh deviation",
+                            encode=lambda deviation: {label: d.to_dict() for label, d in deviation.items()},
+                            decode=_deviation_of)
 
 
-def _read_deviation(path):
-    """The deviation cached in ``path``; None when it is missing, of another format or unreadable (logged)."""
-    try:
-        doc = json.loads(path.read_text())
-        if doc["format"] == CACHE_FORMAT:
-            return {label: SurfaceDeviation(**dict(d, at_into_channel=tuple(d["at_into_channel"]),
-                                                   at_into_material=tuple(d["at_into_material"])))
-                    for label, d in doc["surfaces"].items()}
-    except FileNotFoundError:
-        pass
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        _log.warning("mesh deviation cache %s: unreadable (%s); measuring again", path, exc)
-    return None
-
-
-def _write_deviation(out, deviation):
-    """The deviation as JSON into the binary file ``out``."""
-    out.write(json.dumps({"format": CACHE_FORMAT,
-                          "surfaces": {label: d.to_dict() for label, d in deviation.items()}}).encode())
+def _deviation_of(surfaces):
+    """The deviation of a cached file's value (per surface label, :meth:`SurfaceDeviation.to_dict`)."""
+    return {label: SurfaceDeviation(**dict(d, at_into_channel=tuple(d["at_into_channel"]),
+                                           at_into_material=tuple(d["at_into_material"])))
+            for label, d in surfaces.items()}

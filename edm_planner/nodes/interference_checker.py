@@ -58,7 +58,7 @@ from ..cnc.kinematics import AXES_5, FiveAxisKinematics
 from ..ros.runtime import answer, spin_node
 from ..ros.conversions import (design_override, error_code, msg_to_mesh, pose_to_matrix, poses_to_arrays,
                           quaternions_to_matrices)
-from ..ros.received import ReceivedGeometries
+from ..ros.received import ReceivedGeometries, Unusable
 from ..ros.shared import LATCHED
 
 
@@ -83,8 +83,7 @@ class InterferenceCheckerNode(Node):
         self.redesigned = collections.OrderedDict()
         self.max_designs = max(1, int(self.get_parameter("max_designs").value))
         self._lock = threading.Lock()
-        self.received = ReceivedGeometries(self._lock)       # geometry id -> ChannelChecker
-        self.checkers = self.received.items
+        self.received = ReceivedGeometries(self._lock)       # geometry id -> ChannelChecker (or Unusable)
         self.create_subscription(BliskGeometry, "geometry", self.on_geometry, LATCHED,
                                  callback_group=MutuallyExclusiveCallbackGroup())
         self.service = self.create_service(CheckInterference, "check_interference", self.on_check,
@@ -113,7 +112,7 @@ class InterferenceCheckerNode(Node):
             measured = MeasuredBlades.from_dict(model.get("as_measured"))
         except Exception as exc:  # a geometry we cannot use must not take the node down
             self.get_logger().error(f"geometry {gid[:12]} not usable: {exc!r}")
-            self.received.add(gid, exc)         # the latest: its requests are told, not answered for another
+            self.received.add(gid, Unusable(exc))  # the latest: its requests are told, not answered for another
             return
         with self._lock:
             self.measured[gid] = measured
@@ -157,8 +156,6 @@ class InterferenceCheckerNode(Node):
         # a geometry loaded just before the request may still be on its way on the latched topic
         gid, checker = self.received.require(request.geometry_id,
                                              float(self.get_parameter("unknown_geometry_wait").value))
-        if isinstance(checker, Exception):
-            raise EdmError(ErrorCode.INVALID_GEOMETRY, f"geometry {gid[:12]} not usable: {checker}")
         try:
             method = Method(request.method)
         except ValueError:

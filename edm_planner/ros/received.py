@@ -7,8 +7,16 @@ deadline of their own (their parameter ``unknown_geometry_wait``), before they a
 """
 
 import threading
+from dataclasses import dataclass
 
 from ..errors import EdmError, ErrorCode
+
+
+@dataclass(frozen=True)
+class Unusable:
+    """What a node keeps for a geometry it received but cannot use: its requests are told why."""
+
+    error: Exception
 
 
 class ReceivedGeometries:
@@ -57,10 +65,13 @@ class ReceivedGeometries:
             return gid, self.items.get(gid) if gid else None
 
     def require(self, gid, timeout):
-        """:meth:`get`, raising UNKNOWN_ID when the geometry did not arrive within ``timeout`` s."""
+        """:meth:`get`, raising UNKNOWN_ID when the geometry did not arrive within ``timeout`` s and
+        INVALID_GEOMETRY when it arrived :class:`Unusable`."""
         found, item = self.get(gid, timeout)
         if item is None:
             what = f"unknown geometry id {gid!r}" if gid else "unknown geometry (none received yet)"
             raise EdmError(ErrorCode.UNKNOWN_ID, f"{what} (waited {timeout:g} s for it on the geometry topic); "
                                                  "load it with the geometry_loader first")
+        if isinstance(item, Unusable):
+            raise EdmError(ErrorCode.INVALID_GEOMETRY, f"geometry {found[:12]} not usable: {item.error}")
         return found, item

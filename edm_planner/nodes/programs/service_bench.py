@@ -66,9 +66,9 @@ def nodes_in_process():
     th.start()
     try:
         deadline = time.monotonic() + GEOMETRY_WAIT_S
-        while not checker.checkers and time.monotonic() < deadline:
+        while not checker.received.items and time.monotonic() < deadline:
             time.sleep(0.1)
-        if not checker.checkers:
+        if not checker.received.items:
             raise RuntimeError(f"the interference_checker received no geometry within {GEOMETRY_WAIT_S} s")
         yield loader, checker, client
     finally:
@@ -117,7 +117,7 @@ def check_interference_round_trip(nodes, offsets, repeat=7):
     """Median round trip [ms] of CheckInterference (fast method) of the poses ``offsets`` make of the checker's
     first electrode's final pose (:func:`poses_about`)."""
     _, checker, client = nodes
-    gid, ch = next(iter(checker.checkers.items()))
+    gid, ch = next(iter(checker.received.items.items()))
     ch.fast                                                  # field built before timing
     final = next(iter(ch.electrodes.values()))[1]
     req = CheckInterference.Request(geometry_id=gid, method=CheckInterference.Request.METHOD_FAST)
