@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from edm_planner.geometry.frames import rotation_about_x
-from edm_planner.interference.checker import ChannelChecker, Method
+from edm_planner.interference.checker import ChannelChecker, Method, per_distinct_pose
 from edm_planner.interference.exact_points import ExactChannelDistance, transform_points
 
 
@@ -111,6 +111,51 @@ def test_checker_exact_method_with_the_field_and_its_closest_points(default, fie
     pairs = with_field.closest
     np.testing.assert_allclose(np.linalg.norm(pairs[:, :, 0] - pairs[:, :, 1], axis=2),
                                np.abs(with_field.clearances), atol=1e-9)
+
+
+def test_a_path_that_comes_back_is_checked_once_per_distinct_pose_and_answered_for_every_pose(default, field):
+    """A cycle's return leg retraces its feed: the checker computes each distinct pose once (the same bytes; 0.0
+    and -0.0 differ) and answers every pose bit for bit what the field gives for the whole list."""
+    e = default.electrodes[0]
+    checker = ChannelChecker(default.blisk, {"main": (e.mesh, e.final_pose)}, default.geometry_id)
+    checker._fast = field
+    feed = near(e.final_pose, 30, seed=8, shift=0.3, turn=2e-3)
+    signed = np.eye(4)                                                   # the final pose's place, unturned
+    signed[:3, 3] = e.final_pose[:3, 3]
+    zero = signed.copy()
+    zero[0, 1] = -0.0                                                    # equal as a number, other bytes
+    poses = np.concatenate([feed, feed[::-1], feed[7:9], [signed, zero]])
+    asked = []
+
+    def counted(p, points, channel):
+        asked.append(len(p))
+        return field.pose_clearances(p, points, channel)
+
+    checker._fast = type("Counted", (), {"pose_clearances": staticmethod(counted), "error_bound": field.error_bound})()
+    got = checker.check(poses, method=Method.FAST, threshold=0.05)
+    assert asked == [32]                                                  # 30 + the two signed-zero poses
+    whole, _ = field.pose_clearances(poses, e.mesh.vertices, 0)
+    np.testing.assert_array_equal(got.clearances, whole)
+    np.testing.assert_array_equal(got.colliding, whole.min(axis=1) < 0.05 + field.error_bound)
+    np.testing.assert_array_equal(got.clearances[30:60], got.clearances[29::-1])
+
+
+def test_per_distinct_pose_gives_each_pose_the_values_of_its_own_and_keeps_the_first_order():
+    rng = np.random.default_rng(3)
+    distinct = np.repeat(np.eye(4)[None], 4, axis=0)
+    distinct[:, :3, 3] = rng.normal(size=(4, 3))
+    poses = distinct[[2, 0, 2, 3, 0, 1, 3]]
+    seen = []
+
+    def evaluate(p):                                     # per-pose values of two shapes, as the methods return
+        seen.append(p.copy())
+        return p[:, :3, 3].sum(axis=1), np.repeat(p[:, None, :3, :], 2, axis=1)
+
+    sums, pairs = per_distinct_pose(poses, evaluate)
+    np.testing.assert_array_equal(seen[0], distinct[[2, 0, 3, 1]])                  # each once, first order
+    np.testing.assert_array_equal(sums, poses[:, :3, 3].sum(axis=1))
+    np.testing.assert_array_equal(pairs, np.repeat(poses[:, None, :3, :], 2, axis=1))
+    assert per_distinct_pose(poses[:1], evaluate)[0].shape == (1,)
 
 
 def test_side_test_is_the_sign_of_the_exact_wall_distance(default, field):

@@ -240,21 +240,23 @@ class ChannelChecker:
         points = np.asarray(mesh.vertices)
         pairs = None
         if method == Method.PAPER_CRITERIA:
-            feasible = self.paper.pose_feasible(poses, points, channel=channel)
+            feasible, = per_distinct_pose(poses, lambda p: (self.paper.pose_feasible(p, points, channel=channel),))
             clear = np.full((len(poses), 4), np.nan)
             colliding = ~feasible.all(axis=1)
             bound = 0.0
         elif method == Method.MESH:
-            out = self.mesh.clearances(mesh, poses, channel, closest=closest)
-            clear, pairs = out if closest else (out, None)
+            if closest:
+                clear, pairs = per_distinct_pose(poses, lambda p: self.mesh.clearances(mesh, p, channel, closest=True))
+            else:
+                clear, = per_distinct_pose(poses, lambda p: (self.mesh.clearances(mesh, p, channel),))
             bound = self.mesh.faceting_bound
             colliding = clear.min(axis=1) < threshold + bound
         else:
             if method == Method.FAST:
-                clear, arg = self.fast.pose_clearances(poses, points, channel)
+                clear, arg = per_distinct_pose(poses, lambda p: self.fast.pose_clearances(p, points, channel))
                 bound = self.fast.error_bound
             else:
-                clear, arg = self.exact_pose_clearances(poses, points, channel)
+                clear, arg = per_distinct_pose(poses, lambda p: self.exact_pose_clearances(p, points, channel))
                 bound = 0.0
             colliding = clear.min(axis=1) < threshold + bound
             if closest:
@@ -268,3 +270,26 @@ class ChannelChecker:
                     lambda p: self.lower_bound(p, points, channel, method, mesh), pose_at, lip, threshold,
                     c0=ends[i], c1=ends[i + 1]))
         return result
+
+
+def per_distinct_pose(poses, evaluate):
+    """``evaluate(poses)`` (a tuple of per-pose arrays) run once per distinct pose, then given to every pose.
+
+    A cycle's return leg retraces its feed leg, so about half of a whole cycle's poses repeat: each pose's
+    values depend on that pose alone, so they are computed once. Poses are the same when their matrices
+    are the same bytes (0.0 and -0.0 differ), so every answer is bit for bit the one of the pose itself; the
+    distinct poses keep the order they first appear in (neighbouring poses of a path share cells in cache).
+    """
+    poses = np.ascontiguousarray(poses, dtype=np.float64)
+    n = len(poses)
+    if n < 2:
+        return evaluate(poses)
+    _, first, inverse = np.unique(poses.reshape(n, -1).view(np.uint64), axis=0, return_index=True,
+                                  return_inverse=True)
+    if len(first) == n:
+        return evaluate(poses)
+    order = np.argsort(first)                        # the distinct poses, in the order they first appear
+    rank = np.empty(len(first), dtype=np.int64)
+    rank[order] = np.arange(len(first))
+    rows = rank[inverse.ravel()]
+    return tuple(np.asarray(values)[rows] for values in evaluate(poses[first[order]]))
