@@ -146,28 +146,43 @@ def test_a_geometry_the_topic_already_holds_is_not_published_again(shared_ros, l
     assert got == [first.geometry_id, default.geometry_id, first.geometry_id]
 
 
-def test_markers_follow_the_loads_in_order_the_last_one_latched(ros, tmp_path):
-    """The markers are built after the answer, in a thread of their own: loads in quick succession leave the
-    last geometry's markers on the latched topic, as a late joiner (RViz started later) receives them."""
+def test_markers_are_built_only_for_a_viewer_the_latest_when_it_comes_then_on_each_load(ros, tmp_path):
+    """Markers cost about 2 s of CPU per load: none are built while no viewer subscribes; a viewer that comes
+    later (RViz started later) gets the latest geometry's, and while it listens each load's follow in order."""
     # a namespace of its own: this module's shared loader publishes its markers on the same domain
     node, client = _loader(ros, tmp_path, namespace="markers_in_order")
     for name in ("rotor37.yaml", "mesh_blisk.yaml", "default_blisk.yaml", "rotor37.yaml"):
         assert _load(ros, client, path=name).success
     last = node.geometries[_load(ros, client, path="rotor37.yaml").geometry_id]
-    node._marker_work.submit(lambda: None).result(timeout=120)       # every marker build before it is done
+    node._marker_work.submit(lambda: None).result(timeout=120)       # every marker job before it is done
+    assert node.marker_builds == 0
     late = ros.add(Node("late_viewer", context=ros.context, namespace="markers_in_order"))
     markers = []
     late.create_subscription(MarkerArray, "geometry_markers", markers.append, LATCHED)
-    deadline = time.monotonic() + 30
-    while not markers and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert len(markers) == 1, len(markers)
-    meshes = last.blisk.channel_meshes(resolution=node.get_parameter("mesh_resolution").value)
-    channel = [m for m in markers[0].markers if m.ns == "channel"]
-    assert [len(m.points) for m in channel] == [3 * len(meshes[s].faces) for s in ("suction", "pressure", "hub",
-                                                                                     "shroud")]
-    [electrode] = [m for m in markers[0].markers if m.ns == "electrode"]
-    assert len(electrode.points) == 3 * len(last.electrodes[0].mesh.faces)
+
+    def wait_for(count):
+        deadline = time.monotonic() + 60
+        while len(markers) < count and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(markers) == count, len(markers)
+
+    def assert_markers_of(geometry, got):
+        meshes = geometry.blisk.channel_meshes(resolution=node.get_parameter("mesh_resolution").value)
+        channel = [m for m in got.markers if m.ns == "channel"]
+        assert [len(m.points) for m in channel] == [3 * len(meshes[s].faces)
+                                                     for s in ("suction", "pressure", "hub", "shroud")]
+        [electrode] = [m for m in got.markers if m.ns == "electrode"]
+        assert len(electrode.points) == 3 * len(geometry.electrodes[0].mesh.faces)
+
+    wait_for(1)
+    assert_markers_of(last, markers[0])
+    assert node.marker_builds == 1
+    # with the viewer listening: the next load's markers follow it
+    default = node.geometries[_load(ros, client, path="default_blisk.yaml").geometry_id]
+    wait_for(2)
+    assert_markers_of(default, markers[1])
+    node._marker_work.submit(lambda: None).result(timeout=120)
+    assert node.marker_builds == 2
 
 
 @pytest.mark.parametrize("fields, code, words", [

@@ -23,9 +23,11 @@ Notes
 -----
 Services: ``load_geometry`` (edm_planner_msgs/LoadGeometry).
 Topics (TRANSIENT_LOCAL, depth 1): ``geometry`` (edm_planner_msgs/BliskGeometry),
-``geometry_markers`` (visualization_msgs/MarkerArray). The markers (for RViz) are built and published
-after the geometry, in a thread of their own, in the order of the loads: building their 200 000 points
-takes about 1 s, which neither the LoadGeometry answer nor the node's start waits for.
+``geometry_markers`` (visualization_msgs/MarkerArray). The markers (for RViz) are built only while a
+viewer subscribes to them: building their 200 000 points takes about 2 s of CPU, which a cell without a
+viewer never needs. They are built after the geometry, in a thread of their own (neither the LoadGeometry
+answer nor the node's start waits for them), for the latest geometry: on each load while a viewer is
+matched, and when a viewer is matched that has not got them yet (the publisher's matched event).
 """
 
 import concurrent.futures
@@ -38,6 +40,7 @@ from edm_planner_msgs.msg import BliskGeometry
 from edm_planner_msgs.srv import LoadGeometry
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
@@ -84,9 +87,14 @@ class GeometryLoaderNode(Node):
         self._published = None               # what the latched topics hold: (geometry id, frame, mesh resolution)
         self._lock = threading.Lock()
         self.geometry_pub = self.create_publisher(BliskGeometry, "geometry", LATCHED)
-        self.marker_pub = self.create_publisher(MarkerArray, "geometry_markers", LATCHED)
-        # one thread: the markers of successive loads are published in their order, the last one latched
+        # one thread: markers are published in the order of the loads, the last one latched
         self._marker_work = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="markers")
+        self._marker_source = None           # (publication, meshes, electrodes, frame, stamp) of the latest
+        self._markers_on_topic = None        # the publication whose markers the latched topic holds
+        self.marker_builds = 0               # MarkerArrays built (only while a viewer subscribes)
+        self.marker_pub = self.create_publisher(
+            MarkerArray, "geometry_markers", LATCHED,
+            event_callbacks=PublisherEventCallbacks(matched=self._on_marker_match))
         self.load_service = self.create_service(
             LoadGeometry, "load_geometry", self.on_load_geometry,
             callback_group=MutuallyExclusiveCallbackGroup())
@@ -189,9 +197,28 @@ class GeometryLoaderNode(Node):
         msg.electrodes = [mesh_to_msg(e.mesh) for e in geometry.electrodes]
         msg.electrode_final_poses = matrices_to_poses([e.final_pose for e in geometry.electrodes])
         self.geometry_pub.publish(msg)
-        self._marker_work.submit(self._publish_markers, meshes, geometry.electrodes, frame, stamp)
+        with self._lock:                         # first the source, then the count: a viewer matched meanwhile
+            self._marker_source = (self._published, meshes, geometry.electrodes, frame, stamp)   # finds it
+        if self.marker_pub.get_subscription_count():
+            self._submit_markers()
 
-    def _publish_markers(self, meshes, electrodes, frame, stamp):
+    def _on_marker_match(self, status):
+        if status.current_count_change > 0:      # a viewer came: it may not have the latest markers yet
+            self._submit_markers()
+
+    def _submit_markers(self):
+        try:
+            self._marker_work.submit(self._publish_latest_markers)
+        except RuntimeError:                     # the node is being destroyed
+            pass
+
+    def _publish_latest_markers(self):
+        """The latest geometry's markers on the latched topic, unless it holds them or no viewer listens."""
+        with self._lock:
+            source = self._marker_source
+        if source is None or source[0] == self._markers_on_topic or not self.marker_pub.get_subscription_count():
+            return
+        publication, meshes, electrodes, frame, stamp = source
         try:
             markers = MarkerArray()
             for i, label in enumerate(CHANNEL_SURFACES):
@@ -199,7 +226,9 @@ class GeometryLoaderNode(Node):
             for i, e in enumerate(electrodes):
                 markers.markers.append(mesh_marker(e.mesh, "electrode", i, frame, stamp, (0.85, 0.5, 0.2, 0.9),
                                                    pose=e.final_pose))
+            self.marker_builds += 1
             self.marker_pub.publish(markers)
+            self._markers_on_topic = publication
         except Exception as exc:  # a viewer's markers must not take the node down
             self.get_logger().error(f"markers not published: {exc!r}")
 
