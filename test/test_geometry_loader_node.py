@@ -7,6 +7,7 @@ import sys
 import threading
 import time
 
+import numpy as np
 import pytest
 from edm_planner_msgs.msg import BliskGeometry, ErrorCode
 from edm_planner_msgs.srv import LoadGeometry
@@ -79,9 +80,13 @@ def test_late_joiner_receives_the_default_geometry_and_rebuilds_the_model(ros, f
     blisk = Blisk.from_dict(model)
     assert model["geometry_id"] == msg.summary.geometry_id
     assert list(msg.surface_labels) == ["suction", "pressure", "hub", "shroud"]
-    assert all(len(m.triangles) > 100 for m in msg.surfaces)
+    assert all(len(msg_to_mesh(m).faces) > 100 for m in msg.surfaces)
     electrode = msg_to_mesh(msg.electrodes[0])
     assert electrode.is_watertight and electrode.volume > 1000          # mm^3
+    # flat arrays, received as such: the loader's electrode to the bit
+    loaded = node.geometries[msg.summary.geometry_id].electrodes[0].mesh
+    np.testing.assert_array_equal(electrode.vertices, loaded.vertices)
+    np.testing.assert_array_equal(electrode.faces, loaded.faces)
     pose = pose_to_matrix(msg.electrode_final_poses[0])
     assert 100 < (pose[1, 3] ** 2 + pose[2, 3] ** 2) ** 0.5 < 120       # electrode centre inside the channel
     assert blisk.blade_count == 60

@@ -4,14 +4,14 @@ Coordinates stay in millimetres in every message (geometry_msgs positions
 included, as the message definitions state); RViz markers get a 0.001 scale.
 """
 
+import array
 from dataclasses import replace
 
 import numpy as np
 import trimesh
-from edm_planner_msgs.msg import AxisPath, AxisPoint, ErrorCode, GeometrySummary
+from edm_planner_msgs.msg import AxisPath, AxisPoint, ErrorCode, GeometrySummary, TriangleMesh
 from geometry_msgs.msg import Point, Pose
 from scipy.spatial.transform import Rotation
-from shape_msgs.msg import Mesh, MeshTriangle
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker
 
@@ -26,17 +26,28 @@ def error_code(code):
 
 
 def mesh_to_msg(mesh):
-    """trimesh -> shape_msgs/Mesh (mm)."""
-    msg = Mesh()
-    msg.vertices = [Point(x=float(v[0]), y=float(v[1]), z=float(v[2])) for v in mesh.vertices]
-    msg.triangles = [MeshTriangle(vertex_indices=[int(i) for i in f]) for f in mesh.faces]
+    """trimesh -> edm_planner_msgs/TriangleMesh (mm): the vertices and triangles as two flat arrays."""
+    msg = TriangleMesh()
+    vertices, triangles = array.array("d"), array.array("I")
+    vertices.frombytes(np.ascontiguousarray(mesh.vertices, dtype=np.float64).tobytes())
+    triangles.frombytes(np.ascontiguousarray(mesh.faces, dtype=np.uint32).tobytes())
+    msg.vertices, msg.triangles = vertices, triangles
     return msg
 
 
 def msg_to_mesh(msg):
-    """shape_msgs/Mesh -> trimesh (mm), vertices kept as given."""
-    vertices = np.array([[p.x, p.y, p.z] for p in msg.vertices], dtype=np.float64).reshape(-1, 3)
-    faces = np.array([t.vertex_indices for t in msg.triangles], dtype=np.int64).reshape(-1, 3)
+    """edm_planner_msgs/TriangleMesh -> trimesh (mm), vertices kept as given.
+
+    Raises ValueError for arrays that are no mesh: lengths not multiples of 3, an index beyond the vertices.
+    """
+    vertices = np.array(msg.vertices, dtype=np.float64)
+    faces = np.array(msg.triangles, dtype=np.int64)
+    if len(vertices) % 3 or len(faces) % 3:
+        raise ValueError(f"a TriangleMesh holds 3 values per vertex and per triangle: got {len(vertices)} "
+                         f"vertex and {len(faces)} triangle values")
+    vertices, faces = vertices.reshape(-1, 3), faces.reshape(-1, 3)
+    if len(faces) and faces.max() >= len(vertices):
+        raise ValueError(f"triangle index {int(faces.max())} beyond the {len(vertices)} vertices")
     return trimesh.Trimesh(vertices, faces, process=False)
 
 
