@@ -19,6 +19,10 @@ from .conversions import error_code
 #: threads of a node process's executor
 EXECUTOR_THREADS = 8
 
+#: the longest a node process's executor waits in DDS at a time [s]: how soon it sees a SIGINT whose wake-up
+#: of the wait was lost (then only the interpreter's own check of pending signals, between waits, sees it)
+SIGNAL_CHECK_S = 0.25
+
 
 def spin_node(node_class, args=None):
     """Init rclpy, spin one node on a MultiThreadedExecutor until Ctrl-C or shutdown, clean up.
@@ -37,7 +41,11 @@ def spin_node(node_class, args=None):
     executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS)
     executor.add_node(node)
     try:
-        executor.spin()
+        # not executor.spin(): its wait has no timeout, and rclpy's SIGINT handler now and then fails to wake
+        # it (seen: a loader alive 15 s after SIGINT, its main thread in the wait); a finite wait returns to
+        # the interpreter, which raises the KeyboardInterrupt the signal left pending
+        while executor.context.ok():
+            executor.spin_once(timeout_sec=SIGNAL_CHECK_S)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
