@@ -126,6 +126,9 @@ class NodeProcesses:
             try:
                 proc.wait(timeout=10)
             except subprocess.TimeoutExpired:
+                # its threads' stacks into its log first (the nodes dump them on SIGUSR1): what held it up
+                os.kill(proc.pid, signal.SIGUSR1)
+                time.sleep(1.0)
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
             log.close()

@@ -228,11 +228,14 @@ def test_geometry_loader_process_answers_over_dds(ros, node_processes):
     """The console entry point as its own OS process, called from this process."""
     exe = os.path.join(sys.prefix, "lib", "edm_planner", "geometry_loader")
     assert os.access(exe, os.X_OK), "ament layout executable missing"
-    node_processes.start("geometry_loader")
-    client = ros.add(Node("process_client", context=ros.context))
+    # a namespace of its own: this module's in-process loader serves load_geometry on the same domain, and
+    # answered this test's calls while the process was still starting (the SIGINT below then came mid-start)
+    node_processes.start("geometry_loader", "--ros-args", "-r", "__ns:=/process_answers")
+    client = ros.add(Node("process_client", context=ros.context, namespace="process_answers"))
     for name, blades in (("default_blisk.yaml", 60), ("mesh_blisk.yaml", 60), ("rotor37.yaml", 36)):
         res = _load(ros, client, path=name)
         assert res.success, f"{res.message}\n{node_processes.log('geometry_loader')}"
         assert res.summary.blade_count == blades
+    assert "rotor37.yaml: 36 blades" in node_processes.log("geometry_loader"), "answered by another loader"
     rc = node_processes.stop()
     assert rc["geometry_loader"] in (0, -2), node_processes.log("geometry_loader")
