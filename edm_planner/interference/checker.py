@@ -252,15 +252,16 @@ class ChannelChecker:
             bound = self.mesh.faceting_bound
             colliding = clear.min(axis=1) < threshold + bound
         else:
-            if method == Method.FAST:
-                clear, arg = per_distinct_pose(poses, lambda p: self.fast.pose_clearances(p, points, channel))
-                bound = self.fast.error_bound
-            else:
-                clear, arg = per_distinct_pose(poses, lambda p: self.exact_pose_clearances(p, points, channel))
-                bound = 0.0
+            minima = self.fast.pose_clearances if method == Method.FAST else self.exact_pose_clearances
+            bound = self.fast.error_bound if method == Method.FAST else 0.0
+
+            def evaluate(p):                     # the closest pairs too, once per distinct pose
+                clear, arg = minima(p, points, channel)
+                return (clear, self.closest_pairs(p, points, arg, channel)) if closest else (clear,)
+
+            clear, *rest = per_distinct_pose(poses, evaluate)
+            pairs = rest[0] if closest else None
             colliding = clear.min(axis=1) < threshold + bound
-            if closest:
-                pairs = self.closest_pairs(poses, points, arg, channel)
         result = CheckResult(clear, colliding, float(bound), ClearanceKind.of(method), pairs)
         if segments and method != Method.PAPER_CRITERIA:
             ends = clear.min(axis=1) - bound
