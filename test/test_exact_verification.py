@@ -187,3 +187,11 @@ def test_verify_poses_is_the_minimum_over_every_pose_and_vertex(default, field):
         assert per_pose[t, j] == pytest.approx(got[j], abs=1e-12)
     assert not check.passed and "hub clearance" in check.message        # the shifted pose is in the hub
     assert check.exact_evaluations < 0.5 * len(poses) * len(pts)         # pruned, even where faces parallel walls
+
+
+def test_distinct_count_is_the_number_of_distinct_keys():
+    from edm_planner.interference.pose_check import _distinct_count
+
+    rng = np.random.default_rng(7)
+    for keys in (rng.integers(0, 1000, 5000), rng.permutation(300) * 7, np.array([5]), np.zeros(0, np.int64)):
+        assert _distinct_count(keys) == len(np.unique(keys))
