@@ -140,7 +140,7 @@ def main():
     for s, name in enumerate(("suction", "pressure", "hub", "shroud")):
         def search():
             return min_search._min_search(s, P, V, rep, radius, offset, left, right, *tree, none_i, none_i, none_f,
-                                          EXACT_TOLERANCE, *args)
+                                          EXACT_TOLERANCE, *args, 0, np.full(1, np.inf))   # every vertex
         search()                                        # compiled or loaded outside the clock
         t = time.perf_counter()
         best, _, _, evaluations, keys = search()

@@ -160,11 +160,17 @@ def _reach(radius, rho, offset, tau):
 
 @numba.njit(cache=True, nogil=True)
 def _min_search(surface, poses, V, c_rep, c_rad, c_off, c_left, c_right, s_mid, s_rho, s_tau, s_left, s_right,
-                seed_t, seed_k, seed_v, tol, channel_angle, params, shape, tables):
-    """Exact minimum of one surface's signed distance over every (sample, vertex) pair (best-first bound).
+                seed_t, seed_k, seed_v, tol, channel_angle, params, shape, tables, c_root, shared):
+    """Exact minimum of one surface's signed distance over every sample and the vertices of cluster ``c_root``.
 
-    ``seed_*``: pairs evaluated already (behind a wall). Returns the minimum, its sample and vertex, the
-    number of exact evaluations and the keys ``t * m + k`` of every pair evaluated.
+    Best-first branch and bound. ``seed_*``: pairs evaluated already (behind a wall). ``shared`` (1,): the
+    smallest value found so far by any search of the same surface (other clusters, other threads): it
+    prunes here as well, and this search lowers it. Only a value actually found is ever written, so it
+    never lies below the surface's minimum, and a pair attaining that minimum is never pruned (its bound
+    is not above it): the minimum and its pair (the lowest key among ties) are those of one search over
+    all vertices. Which other pairs get evaluated depends on the threads' timing. Returns the minimum
+    over the cluster (inf when everything was pruned by ``shared``), its sample and vertex, the number of
+    exact evaluations and the keys ``t * m + k`` of every pair evaluated.
     """
     params, shape, tables = named_exact(params, shape, tables)
     m = V.shape[0]
@@ -177,10 +183,13 @@ def _min_search(surface, poses, V, c_rep, c_rad, c_off, c_left, c_right, s_mid, 
         if seed_v[i] < best or (seed_v[i] == best and key < best_key):
             best, best_key = seed_v[i], key
     evaluations = 0
-    heap = [(-np.inf, np.int64(0), np.int64(0))]
+    heap = [(-np.inf, np.int64(0), np.int64(c_root))]
     while len(heap) > 0:
         prior, sn, cn = heapq.heappop(heap)
-        if prior >= best + tol:
+        if best < shared[0]:
+            shared[0] = best            # a value found (a racing thread may raise it again: only less pruning)
+        low = min(best, shared[0])
+        if prior >= low + tol:
             break
         t, k = s_mid[sn], c_rep[cn]
         key = t * m + k
@@ -193,8 +202,9 @@ def _min_search(surface, poses, V, c_rep, c_rad, c_off, c_left, c_right, s_mid, 
             evaluations += 1
             if v < best or (v == best and key < best_key):
                 best, best_key = v, key
+        limit = min(best, low) + tol
         bound = max(prior, v - _reach(c_rad[cn], s_rho[sn], c_off[cn], s_tau[sn]))
-        if bound >= best + tol or (s_left[sn] < 0 and c_left[cn] < 0):
+        if bound >= limit or (s_left[sn] < 0 and c_left[cn] < 0):
             continue
         split_samples = c_left[cn] < 0 or (s_left[sn] >= 0 and s_rho[sn] * c_off[cn] + s_tau[sn] >= c_rad[cn])
         for side in range(2):
@@ -205,7 +215,7 @@ def _min_search(surface, poses, V, c_rep, c_rad, c_off, c_left, c_right, s_mid, 
             qx, qy, qz = _place(poses, V, s_mid[sc], c_rep[cc])
             gap = math.sqrt((qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2)
             child = max(bound, v - gap * (1.0 + _REACH_SLACK) - _reach(c_rad[cc], s_rho[sc], c_off[cc], s_tau[sc]))
-            if child < best + tol:
+            if child < limit:
                 heapq.heappush(heap, (child, sc, cc))
     keys = np.empty(len(done), dtype=np.int64)
     i = 0
