@@ -172,6 +172,26 @@ def test_pose_travel():
     assert pose_travel_of(el.vertices, np.array([np.eye(4), turn])) == pytest.approx(2 / math.cos(math.pi / 8))
 
 
+def test_the_hull_points_stand_for_the_electrode_bit_for_bit(default_geometry):
+    """removed_volumes thins and bounds each cut's poses over its mesh's hull points (computed once per mesh):
+    the same moves, to the bit, as over every vertex."""
+    from edm_planner.process.volume import hull_points, thin_poses
+
+    V = np.asarray(default_geometry.electrodes[0].mesh.vertices)
+    hull = hull_points(V)
+    assert 3 < len(hull) < len(V) // 10
+    rng = np.random.default_rng(5)
+    poses = []
+    for k in range(60):                                  # a feed with a little turning, as a cycle's leg
+        a = 0.002 * k + 1e-4 * rng.standard_normal()
+        pose = shifted(0.05 * k, 0.01 * rng.standard_normal(), 0.0)
+        pose[1:3, 1:3] = [[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]
+        poses.append(pose)
+    poses = np.array(poses)
+    assert pose_travel_of(hull, poses) == pose_travel_of(V, poses)
+    assert np.array_equal(thin_poses(hull, poses, 0.2), thin_poses(V, poses, 0.2))
+
+
 def test_bad_input():
     good = plunge_cut("ok", n=3)
     scaled = good.poses.copy()

@@ -290,17 +290,25 @@ def _check_pose(label, poses):
     return poses
 
 
-def _pair_moves(vertices, poses):
-    """Per consecutive pose pair: the largest move [mm] of an electrode point, helix-corrected (module doc).
+def hull_points(vertices):
+    """The vertices of the points' convex hull, in their input order (every point for a flat or degenerate set).
 
-    The move of a point v, |(P_k+1 - P_k) v|, is convex in v, so its maximum over the solid is at a
-    vertex of the convex hull.
+    They stand for the whole solid in :func:`pose_travel_of` and :func:`thin_poses`: the move of a point v,
+    |(P_k+1 - P_k) v|, is convex in v, so its maximum over the solid is at a vertex of the convex hull.
     """
     v = np.asarray(vertices, dtype=np.float64)
     try:
-        v = v[ConvexHull(v).vertices]
+        return v[ConvexHull(v).vertices]
     except Exception:  # flat or degenerate mesh: every vertex
-        pass
+        return v
+
+
+def _pair_moves(vertices, poses):
+    """Per consecutive pose pair: the largest move [mm] of an electrode point, helix-corrected (module doc).
+
+    Over the vertices of the points' convex hull (:func:`hull_points`; the hull of hull points is cheap).
+    """
+    v = hull_points(vertices)
     D = poses[1:] - poses[:-1]
     moves = np.concatenate([  # in blocks of poses: (poses, vertices, 3) stays small
         np.linalg.norm(np.einsum("nij,mj->nmi", D[s:s + 256, :3, :3], v) + D[s:s + 256, None, :3, 3],
@@ -488,15 +496,17 @@ def removed_volumes(blank, cuts, resolution=0.5, sdf_spacing=None, pose_travel=N
         raise _bad("cuts: at least one cut is needed")
     _check_blank(blank)
     rho, e = SQRT3_2 * res, SQRT3_2 * h
-    prepared = []
+    prepared, hulls = [], {}
     for c in cuts:
         V, F = _check_mesh(f"cut {c.label!r}", c.vertices, c.faces)
         gap = _positive(f"cut {c.label!r}: gap", c.gap)
         P = _check_pose(c.label, c.poses)
-        if max_travel is not None and pose_travel is None:
-            P = P[thin_poses(V, P, _positive("max_travel", max_travel))]
-        d = pose_travel / 2 if pose_travel is not None else pose_travel_of(V, P) / 2
         key = hashlib.sha1(V.tobytes() + F.tobytes()).hexdigest()  # one distance grid per distinct mesh
+        if pose_travel is None and key not in hulls:
+            hulls[key] = hull_points(V)        # once per mesh: 20 ms for an electrode of 29 430 vertices
+        if max_travel is not None and pose_travel is None:
+            P = P[thin_poses(hulls[key], P, _positive("max_travel", max_travel))]
+        d = pose_travel / 2 if pose_travel is not None else pose_travel_of(hulls[key], P) / 2
         prepared.append((c, V, F, P, gap, d, key))
 
     # distance grids: one per mesh, wide enough that outside it every voxel is surely out
