@@ -223,6 +223,17 @@ def test_verify_poses_searches_halves_of_the_vertices_with_the_answer_of_one_sea
     assert told[3] < alone[3] and told[0] >= checks[0].clearance_exact["suction"]
 
 
+def test_the_halves_results_join_as_one_search():
+    from edm_planner.interference.pose_check import _joined
+
+    m = 6
+    got = _joined([(0.5, 3, 1, 1, np.array([19])), (0.5, 2, 4, 2, np.array([16, 3]))], m)
+    assert got[:4] == (0.5, 2, 4, 3) and sorted(got[4]) == [3, 16, 19]      # a tie: the lower key 2 * 6 + 4
+    got = _joined([(np.inf, -1, 5, 0, np.zeros(0, np.int64)), (0.7, 0, 1, 4, np.array([1]))], m)
+    assert got[:4] == (0.7, 0, 1, 4)
+    assert _joined([(np.inf, -1, 5, 0, np.zeros(0, np.int64))] * 2, m)[0] == np.inf     # nothing: inf, no error
+
+
 def test_distinct_count_is_the_number_of_distinct_keys():
     from edm_planner.interference.pose_check import _distinct_count
 

@@ -285,7 +285,7 @@ def verify_poses(poses, vertices, channel, blisk, field=None, *, threshold=0.0, 
 def _joined(parts, m):
     """One surface's search result from its parts' (minimum, sample, vertex, evaluations, keys): the smallest
     minimum, the lowest pair key among equal ones (as one search over every vertex gives)."""
-    found = [r for r in parts if np.isfinite(r[0])]
+    found = [r for r in parts if np.isfinite(r[0])] or parts[:1]      # none finite: inf, as one search gives
     best = min(found, key=lambda r: (r[0], r[1] * m + r[2]))
     return (best[0], best[1], best[2], sum(int(r[3]) for r in parts), np.concatenate([r[4] for r in parts]))
 
