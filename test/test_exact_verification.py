@@ -192,32 +192,23 @@ def test_verify_poses_is_the_minimum_over_every_pose_and_vertex(default, field):
 def test_verify_poses_searches_halves_of_the_vertices_with_the_answer_of_one_search(default, field):
     """Each surface is searched as two halves of the vertex tree sharing their best value: the minimum and
     its (sample, vertex) are those of one search over every vertex, on one thread or two."""
-    from edm_planner.constants import EXACT_TOLERANCE
-    from edm_planner.interference import min_search
-    from edm_planner.interference.pose_check import verify_poses
+    from edm_planner.interference.pose_check import search_trees, surface_minimum, verify_poses
 
     e = default.electrodes[0]
     V = np.ascontiguousarray(e.mesh.vertices)
     P = np.ascontiguousarray(np.concatenate([e.final_pose[None], near(e.final_pose, 6, seed=3, shift=0.1)]))
     full = field._plain_args(0)
-    rep, radius, left, right = min_search._vertex_tree(V)
-    origin = 0.5 * (V.min(axis=0) + V.max(axis=0))
-    offset = np.linalg.norm(V[rep] - origin, axis=1)
-    tree = min_search._sample_tree(P, origin)
-    none_i, none_f = np.zeros(0, np.int64), np.zeros(0)
+    exact_args = (full.channel_angle, full.params, full.shape, full.tables)
+    trees = search_trees(P, V)
     checks = [verify_poses(P, V, 0, default.blisk, field, threads=n) for n in (1, 2)]
     for s, name in enumerate(("suction", "pressure", "hub", "shroud")):
-        best, t, k, _, _ = min_search._min_search(s, P, V, rep, radius, offset, left, right, *tree, none_i, none_i,
-                                                  none_f, EXACT_TOLERANCE, full.channel_angle, full.params,
-                                                  full.shape, full.tables, 0, np.full(1, np.inf))
+        best, t, k, _, _ = surface_minimum(s, P, V, trees, exact_args)
         for check in checks:
             assert check.clearance_exact[name] == best and check.argmin[name] == (t, k)
     # a value shared by another search prunes: given one just below the minimum, a half solves fewer pairs
     # and finds nothing below it
     def half(shared):
-        return min_search._min_search(0, P, V, rep, radius, offset, left, right, *tree, none_i, none_i, none_f,
-                                      EXACT_TOLERANCE, full.channel_angle, full.params, full.shape, full.tables,
-                                      left[0], np.full(1, shared))
+        return surface_minimum(0, P, V, trees, exact_args, root=trees.halves[0], shared=np.full(1, shared))
 
     alone, told = half(np.inf), half(checks[0].clearance_exact["suction"] - 1e-3)
     assert told[3] < alone[3] and told[0] >= checks[0].clearance_exact["suction"]

@@ -25,13 +25,12 @@ import numpy as np
 
 from edm_planner.bench.common import CONFIG, rear_design
 from edm_planner.cli import DEFAULT_CACHE
-from edm_planner.constants import EXACT_TOLERANCE
 from edm_planner.geometry.loader import load_geometry
 from edm_planner.geometry.spline_kernels import _meridional_step, new_work, surface_eval
-from edm_planner.interference import min_search
 from edm_planner.interference.exact_solvers import _behind_at, _channel_coordinates, _exact_at, _nearest_start
 from edm_planner.interference.fast import FastChannelField
 from edm_planner.interference.field_params import named_exact
+from edm_planner.interference.pose_check import search_trees, surface_minimum
 from edm_planner.planning.plan import PlanOptions
 from edm_planner.planning.planner import plan_channel
 from edm_planner.planning.search import SearchOptions
@@ -130,17 +129,12 @@ def main():
     P, V = np.ascontiguousarray(plan.poses), np.ascontiguousarray(plan.electrode_mesh.vertices)
     full = field._plain_args(0)
     args = (full.channel_angle, full.params, full.shape, full.tables)
-    rep, radius, left, right = min_search._vertex_tree(V)
-    origin = 0.5 * (V.min(axis=0) + V.max(axis=0))
-    offset = np.linalg.norm(V[rep] - origin, axis=1)
-    tree = min_search._sample_tree(P, origin)
-    none_i, none_f = np.zeros(0, np.int64), np.zeros(0)
+    trees = search_trees(P, V)
     print(json.dumps({"samples": len(P), "vertices": len(V), "numba_threads": numba.get_num_threads()}))
     suction_points = None
     for s, name in enumerate(("suction", "pressure", "hub", "shroud")):
         def search():
-            return min_search._min_search(s, P, V, rep, radius, offset, left, right, *tree, none_i, none_i, none_f,
-                                          EXACT_TOLERANCE, *args, 0, np.full(1, np.inf))   # every vertex
+            return surface_minimum(s, P, V, trees, args)                       # every vertex
         search()                                        # compiled or loaded outside the clock
         t = time.perf_counter()
         best, _, _, evaluations, keys = search()

@@ -12,6 +12,7 @@ import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -229,24 +230,18 @@ def verify_poses(poses, vertices, channel, blisk, field=None, *, threshold=0.0, 
     seeds = _search._exact_pairs(P, V, behind_t, behind_k, behind_f, *args)
     report("anchors", 1.0, 0, 0.0, f"{len(behind_t)} vertex positions behind a wall")
 
-    vtree = _search._vertex_tree(V)
-    origin = 0.5 * (V.min(axis=0) + V.max(axis=0))
-    offset = np.linalg.norm(V[vtree[0]] - origin, axis=1)
-    stree = _search._sample_tree(P, origin)
-
+    trees = search_trees(P, V)
     # each surface searched as two halves of the vertex tree sharing their best value: the suction wall
     # alone took as long as the three other surfaces together, which left one of two threads idle (the
     # default plan's re-check, Zen 3, 8 alternated runs: 1.03 / 1.22 s min / median whole, 0.94 / 1.09 s halved;
     # four or eight parts per surface gained nothing more)
-    left, right = vtree[2][0], vtree[3][0]
-    halves = [left, right] if left >= 0 else [0]
+    halves = trees.halves
     shared = [np.full(1, np.inf) for _ in SURFACES]
 
     def search(s, half):
         mine = behind_f == s
-        return _search._min_search(s, P, V, vtree[0], vtree[1], offset, vtree[2], vtree[3], *stree,
-                                   behind_t[mine], behind_k[mine], seeds[mine], EXACT_TOLERANCE, *args,
-                                   half, shared[s])
+        return surface_minimum(s, P, V, trees, args, (behind_t[mine], behind_k[mine], seeds[mine]),
+                                       half, shared[s])
 
     workers = max(1, min(len(SURFACES) * len(halves), int(threads or numba.get_num_threads())))
     with ThreadPoolExecutor(max_workers=workers) as pool:
@@ -280,6 +275,45 @@ def verify_poses(poses, vertices, channel, blisk, field=None, *, threshold=0.0, 
                      exact_by_surface={s: int(r[3]) for s, r in zip(SURFACES, results)},
                      behind_pairs=len(behind_t), threshold=float(threshold), elapsed=elapsed,
                      message="; ".join(problems) or "ok", vertex_clearance=vertex_best, feature_cover=cover)
+
+
+class SearchTrees(NamedTuple):
+    """The branch and bound's trees over one pose sequence and vertex set (:func:`search_trees`)."""
+    rep: np.ndarray          # the vertex clusters (``_vertex_tree``): representative, radius, children
+    radius: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    offset: np.ndarray       # |representative - origin|, the origin the sample tree's moves are taken about
+    samples: tuple           # ``_sample_tree``: mid, rho, tau, left, right
+
+    @property
+    def halves(self):
+        """The vertex tree's top clusters to search apart: its two children, or the root of a one-vertex tree."""
+        return [int(self.left[0]), int(self.right[0])] if self.left[0] >= 0 else [0]
+
+
+def search_trees(poses, vertices):
+    """The vertex and sample trees of ``surface_minimum`` for (N, 4, 4) poses and (M, 3) vertices (contiguous)."""
+    rep, radius, left, right = _search._vertex_tree(vertices)
+    origin = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+    return SearchTrees(rep, radius, left, right, np.linalg.norm(vertices[rep] - origin, axis=1),
+                       _search._sample_tree(poses, origin))
+
+
+_NO_SEEDS = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
+
+
+def surface_minimum(surface, poses, vertices, trees, exact_args, seeds=_NO_SEEDS, root=0, shared=None):
+    """``_min_search`` of one surface over the vertices of cluster ``root`` (0: all) and every sample.
+
+    ``exact_args``: (channel angle, params, shape, tables) of the field's plain kernel arguments;
+    ``seeds``: (sample, vertex, value) arrays of pairs evaluated already; ``shared``: the (1,) array the
+    searches of one surface share (a new one when None). Returns (minimum, sample, vertex, exact
+    evaluations, keys of the pairs evaluated).
+    """
+    return _search._min_search(surface, poses, vertices, trees.rep, trees.radius, trees.offset, trees.left,
+                               trees.right, *trees.samples, *seeds, EXACT_TOLERANCE, *exact_args, root,
+                               np.full(1, np.inf) if shared is None else shared)
 
 
 def _joined(parts, m):
