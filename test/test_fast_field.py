@@ -533,6 +533,27 @@ def test_marked_nodes_carry_a_lower_bound_of_their_value():
     assert 0.3 - 1e-7 < told[0] <= abs(float(plain[0])) and told[1] <= 0.2 and told[2] == -1.0
 
 
+def test_a_field_built_on_one_thread_or_two_is_the_same_bits(default):
+    """The build's parallel stages (the (x, r) lines, the coarse and fine nodes, the marks) solve each node
+    on its own: every table is the same bytes whatever the number of numba threads."""
+    import numba
+    from edm_planner.interference.field_cache import ARRAYS
+
+    threads = numba.get_num_threads()
+    fields = []
+    try:
+        for n in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+            numba.set_num_threads(n)
+            fields.append(FastChannelField(default.blisk, spacing=0.4, error_samples=100))
+    finally:
+        numba.set_num_threads(threads)
+    one, two = fields
+    assert one.stats["exact_fallback_node_fraction"] > 0          # the marks' pass has nodes to mark
+    for name in ARRAYS:
+        a, b = getattr(one, name), getattr(two, name)
+        assert a.shape == b.shape and a.tobytes() == b.tobytes(), name
+
+
 def test_pose_minimum_skips_exact_solves_that_cannot_attain_it(default, field):
     """pose_clearances solves a point in a cell marked for the exact solver only where its bound (the
     nodes' unsigned values less their distance and the field's error bound) does not clear the minimum:

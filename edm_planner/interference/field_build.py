@@ -24,9 +24,12 @@ from .field_layout import uv_starts
 from .field_params import ACCURATE_WITHIN, NAN_BITS, NODE_QUANTUM, _NEWTON_TOL
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _fill_lines(cp_s, tu_s, tv_s, cp_p, tu_p, tv_p, xs, rs, seeds):
     """Per (x, r): both faces' (u, v), footprint test and angle.
+
+    Chunks of 1024 points in parallel, each with its own solver scratch (every point is solved on its own:
+    the same values on any number of threads).
 
     Parameters
     ----------
@@ -47,7 +50,7 @@ def _fill_lines(cp_s, tu_s, tv_s, cp_p, tu_p, tv_p, xs, rs, seeds):
     theta = np.empty((n, 2))
     inside = np.empty((n, 2), dtype=np.bool_)
     n_chunk = (n + 1023) // 1024
-    for chunk in range(n_chunk):
+    for chunk in numba.prange(n_chunk):
         work = new_work()
         for k in range(chunk * 1024, min(n, chunk * 1024 + 1024)):
             u, v, in_s, th = uv_at(cp_s, tu_s, tv_s, xs[k], rs[k], seeds[k, 0, 0], seeds[k, 0, 1], work)
@@ -276,7 +279,7 @@ def _jump(a, b, length, tol, far, far_tol):
     return abs(a - b) > length + t
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _flag_nodes(grid, edge, params, shape, curvature_tol, edge_curvature_tol, accurate_within, jump_tol,
                 carry_within):
     """Mark nodes whose cells trilinear interpolation does not represent (NaN in place).
@@ -293,13 +296,15 @@ def _flag_nodes(grid, edge, params, shape, curvature_tol, edge_curvature_tol, ac
     edge, and the error can reach a quarter). A marked node becomes a NaN that
     carries its unsigned value where that lies within ``carry_within``
     (``_carrying_nan``). Returns the number of marked (node, face) pairs.
+    Both passes run over x planes in parallel: the first writes only its plane's marks from the values as
+    built, the second (after all marks) only its plane's NaNs, so any number of threads gives the same bits.
     """
     nx, nr, nt = shape.nx, shape.nr, shape.nt
     mark = np.zeros((nx, nr, nt, 2), dtype=np.uint8)
     hx, hr = params.hx, params.hr
     far = accurate_within + 0.5
     count_x = np.zeros(nx, dtype=np.int64)
-    for ix in range(nx):
+    for ix in numba.prange(nx):
         for ir in range(nr):
             for it in range(nt):
                 for face in range(2):
@@ -341,7 +346,7 @@ def _flag_nodes(grid, edge, params, shape, curvature_tol, edge_curvature_tol, ac
                     if s > tol:
                         mark[ix, ir, it, face] = 1
     bits = grid.view(np.uint32)
-    for ix in range(nx):
+    for ix in numba.prange(nx):
         c = 0
         for ir in range(nr):
             for it in range(nt):
