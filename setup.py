@@ -17,7 +17,7 @@ NODES = {
 }
 
 # Command-line tools (bin/ only, not ROS nodes).
-COMMANDS = ["edm-plan = edm_planner.cli:main"]
+COMMANDS = ["edm-plan = edm_planner.cli:run"]
 
 setup(
     name=PACKAGE,

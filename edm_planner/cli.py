@@ -37,6 +37,7 @@ configure_process()
 
 from .environment import CACHE_ROOT  # noqa: E402  (after the set-up above)
 from .errors import EdmError, ErrorCode  # noqa: E402
+from .quick_exit import exit_now  # noqa: E402
 from .geometry.loader import load_geometry  # noqa: E402
 from .planning.plan import PlanOptions  # noqa: E402
 from .planning.planner import plan_channel  # noqa: E402
@@ -966,5 +967,11 @@ def _one_line(message):
     return " ".join(part.strip() for part in str(message).splitlines() if part.strip())
 
 
+def run():
+    """The ``edm-plan`` console script: :func:`main`, then the process ends without Python's final teardown
+    (:func:`.quick_exit.exit_now`: about 0.6 s of a command's time, Zen 3)."""
+    exit_now(main())
+
+
 if __name__ == "__main__":
-    raise SystemExit(main())
+    run()

@@ -32,6 +32,7 @@ from ...environment import configure_process
 # this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
 configure_process()
 
+from ...quick_exit import exit_now
 from ...ros.dds import use_loopback_udp
 from .bringup import NODES, Bringup
 
@@ -77,4 +78,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    exit_now(main())            # without Python's final teardown of the planner, rclpy and matplotlib (about 1 s)
