@@ -71,7 +71,8 @@ def test_the_server_maps_its_modules_to_files_once_for_every_forked_node(monkeyp
     monkeypatch.setattr(bringup.multiprocessing.forkserver, "set_forkserver_preload", preloaded.extend)
     monkeypatch.setattr(bringup.multiprocessing.forkserver, "ensure_running", lambda: None)
     Bringup.preload(("axis_bridge", "geometry_loader"))
-    assert preloaded == ["edm_planner.nodes.axis_bridge", "edm_planner.nodes.geometry_loader", bringup.SERVER_WARMUP]
+    assert preloaded == [bringup.SERVER_EXIT, "edm_planner.nodes.axis_bridge", "edm_planner.nodes.geometry_loader",
+                         bringup.SERVER_WARMUP]
     # in a process of its own, as the server: after the warm-up a log call's lookup maps nothing new
     probe = ("import importlib, inspect, sys\n"
              f"for name in {preloaded!r}: importlib.import_module(name)\n"
@@ -129,3 +130,23 @@ def test_the_bridge_loads_its_timing_solver_while_it_waits_and_the_timing_module
     timing = subprocess.run([sys.executable, "-c", "import sys, edm_planner.cnc.timing; "
                              "print('toppra' in sys.modules)"], capture_output=True, text=True, timeout=300)
     assert timing.stdout.split() == ["False"], timing.stdout + timing.stderr
+
+
+def test_the_server_runs_every_atexit_handler_then_leaves_without_the_teardown(tmp_path):
+    """server_exit, imported before the nodes' modules, registers the handler that runs last: the handlers the
+    later imports register still run, the objects' teardown (here a __del__ writing a file) does not."""
+    import subprocess
+    import sys
+
+    probe = ("import atexit, pathlib, sys\n"
+             "import edm_planner.nodes.programs.server_exit\n"
+             f"out = pathlib.Path({str(tmp_path)!r})\n"
+             "atexit.register(lambda: (out / 'atexit').write_text('ran'))\n"
+             "class Teardown:\n"
+             "    def __del__(self):\n"
+             "        (out / 'teardown').write_text('ran')\n"
+             "kept = Teardown()\n"
+             "sys.stdout.write('flushed')\n")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout == "flushed", done.stderr
+    assert (tmp_path / "atexit").exists() and not (tmp_path / "teardown").exists()

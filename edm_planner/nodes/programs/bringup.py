@@ -32,6 +32,8 @@ _CONTEXT = multiprocessing.get_context("forkserver")
 
 #: imported by the server after the nodes' modules: what every process would do once (see the module)
 SERVER_WARMUP = "edm_planner.nodes.programs.server_warmup"
+#: imported by the server before them: its exit without the teardown of their modules (see the module)
+SERVER_EXIT = "edm_planner.nodes.programs.server_exit"
 
 
 def _node_modules(names):
@@ -103,7 +105,7 @@ class Bringup:
         The server is one per process and keeps the modules of the first call; a later start of other nodes
         imports theirs in the node's own process.
         """
-        multiprocessing.forkserver.set_forkserver_preload(_node_modules(names) + [SERVER_WARMUP])
+        multiprocessing.forkserver.set_forkserver_preload([SERVER_EXIT] + _node_modules(names) + [SERVER_WARMUP])
         multiprocessing.forkserver.ensure_running()
 
     def start(self, names=NODES):
