@@ -7,13 +7,13 @@ from setuptools import find_packages, setup
 
 PACKAGE = "edm_planner"
 
-# One entry per node; the executables land in lib/edm_planner (ros2 run) and,
-# under pip, in the environment's bin/.
+# One entry per node (edm_planner/nodes/entry.py: the node's main, then a quick exit); the executables land
+# in lib/edm_planner (ros2 run) and, under pip, in the environment's bin/.
 NODES = {
-    "geometry_loader": "edm_planner.nodes.geometry_loader:main",
-    "interference_checker": "edm_planner.nodes.interference_checker:main",
-    "trajectory_planner": "edm_planner.nodes.trajectory_planner:main",
-    "axis_bridge": "edm_planner.nodes.axis_bridge:main",
+    "geometry_loader": "edm_planner.nodes.entry:geometry_loader",
+    "interference_checker": "edm_planner.nodes.entry:interference_checker",
+    "trajectory_planner": "edm_planner.nodes.entry:trajectory_planner",
+    "axis_bridge": "edm_planner.nodes.entry:axis_bridge",
 }
 
 # Command-line tools (bin/ only, not ROS nodes).
