@@ -127,3 +127,21 @@ def test_demo_interrupted_stops_every_node_and_exits_non_zero(tmp_path):
     assert proc.returncode == 130, text
     assert "interrupted" in text and "all nodes stopped" in text
     assert processes_of(env["HOME"]) == [], running
+
+
+def test_the_demos_pictures_are_drawn_in_their_thread_in_order_and_a_failure_reaches_the_demo():
+    import threading
+
+    from edm_planner.nodes.programs.demo_steps import Pictures
+
+    pictures, drawn = Pictures(), []
+    try:
+        pictures.draw(lambda plots, k: drawn.append((k, plots.__name__, threading.current_thread().name)), 1)
+        pictures.draw(lambda plots: 1 / 0)
+        pictures.draw(lambda plots, k: drawn.append((k, plots.__name__, threading.current_thread().name)), 3)
+        with pytest.raises(ZeroDivisionError):
+            pictures.wait(120)
+    finally:
+        pictures.close()
+    assert [d[:2] for d in drawn] == [(1, "edm_planner.records.plots"), (3, "edm_planner.records.plots")]
+    assert {d[2] for d in drawn} == {"demo-pictures_0"}

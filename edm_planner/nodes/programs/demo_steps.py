@@ -5,6 +5,7 @@ messages and the core while the nodes import theirs. What the steps do: :mod:`.d
 """
 
 import csv
+import importlib
 import json
 import math
 import pathlib
@@ -12,6 +13,7 @@ import shutil
 import sys
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import rclpy
@@ -176,10 +178,33 @@ def _cycle_csv(path):
     return names, np.array([[float(v) for v in r[2:2 + len(axes)]] for r in rows[1:]]), [r[0] for r in rows[1:]]
 
 
-def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=False):
-    # heavy and optional: matplotlib (about 0.5 s to import) for the pictures only
-    from ...records import plots
+class Pictures:
+    """The demo's pictures, drawn one after another in a thread of their own while the steps wait on the nodes.
 
+    matplotlib (imported here first: about 0.5 s, 2 s under load) and the drawing (about 3 s, Zen 3) would
+    otherwise run after the last step. One thread: pyplot's state is never touched by two at once.
+    :meth:`wait` returns what each drawing returned, or raises its error.
+    """
+
+    def __init__(self):
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="demo-pictures")
+        self._plots = self._pool.submit(importlib.import_module, "edm_planner.records.plots")
+        self._jobs = []
+
+    def draw(self, fn, *args, **kwargs):
+        """Queue ``fn(plots, *args, **kwargs)`` (``plots``: :mod:`edm_planner.records.plots`)."""
+        self._jobs.append(self._pool.submit(lambda: fn(self._plots.result(), *args, **kwargs)))
+
+    def wait(self, timeout):
+        deadline = time.monotonic() + timeout
+        return [job.result(timeout=max(0.0, deadline - time.monotonic())) for job in self._jobs]
+
+    def close(self):
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=False):
+    pictures = Pictures()
     share = pathlib.Path(sys.prefix) / "share" / "edm_planner" / "config"
 
     # Ctrl-C must reach the demo as KeyboardInterrupt (stop the nodes, exit 130), not shut rclpy down
@@ -229,6 +254,9 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=Fal
         set_doc = json.loads((pathlib.Path(res.export_path) / "set.json").read_text())
         delivered = next(c for c in set_doc["candidates"] if c["name"] == set_doc["delivered"])
         designs = {p["label"]: p for p in delivered["pieces"]}
+        label0 = res.electrode_labels[0]
+        pictures.draw(_channel_picture, geometries, geo.geometry_id, channel,
+                      pathlib.Path(res.export_path) / label0, out_dir)
         trajectories = []
         for i, label in enumerate(res.electrode_labels):
             with Step(f"ExecutePlan: set {res.set_id}, electrode {i} ({label}): its whole cycle"):
@@ -248,6 +276,9 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=Fal
                         raise RuntimeError(f"no JointTrajectory received on {TRAJECTORY_TOPIC}")
                     time.sleep(0.05)
                 trajectories.append((label, ex, received[-1]))
+                if i == 0:
+                    pictures.draw(_axis_pictures, label, ex, received[-1],
+                                  pathlib.Path(res.export_path) / label / "cycle.csv", out_dir)
                 phases = ", ".join(f"{n} {t:.1f} s" for n, t in zip(ex.phase_names, ex.phase_start_times))
                 print(f"    {ex.point_count} points, {ex.duration:.1f} s ({ex.duration / 3600:.2f} h; generator on "
                       f"{ex.eroding_time / 3600:.2f} h in {sorted(set(r for r in ex.regime_names if r))}); "
@@ -268,39 +299,18 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=Fal
                 clearances[label] = np.array([[c.suction, c.pressure, c.hub, c.shroud] for c in chk.clearances])
                 print(f"    {len(q)} samples; smallest {clearances[label].min():.4f} mm (fast value, error bound "
                       f"{chk.error_bound * 1e3:.1f} um)")
+        margin = float(set_doc["candidates"][0]["pieces"][0]["design"]["discharge_gap"]) - 0.02
+        allc = np.vstack(list(clearances.values()))
+        pictures.draw(lambda plots: plots.clearance_plot(
+            np.arange(len(allc)), allc, [margin] * 4, out_dir / "clearance.png",
+            f"fast values of CheckInterference, exact within +-{chk.error_bound * 1e3:.1f} um",
+            xlabel="cycle sample (" + ", then ".join(clearances) + ")"))
         with Step(f"plots and 3D view in {out_dir}"):
-
-            label0, ex0, traj = trajectories[0]
-            t = np.array([p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in traj.points])
-            qt = np.array([p.positions for p in traj.points])
-            plots.axis_curves(t, qt, list(traj.joint_names), out_dir / "axes_vs_time.png", "time [s]",
-                              f"The {label0} electrode's cycle as sent to the controller ({ex0.duration:.1f} s)",
-                              marks=list(zip(ex0.phase_names, ex0.phase_start_times)))
-            names, q, phase = _cycle_csv(pathlib.Path(res.export_path) / label0 / "cycle.csv")
-            plots.axis_curves(np.arange(len(q)), q, names, out_dir / "axes_vs_index.png", "sample index",
-                              f"Axis values along the {label0} electrode's certified cycle (cf. Huang Fig. 7)",
-                              marks=[(p, i) for i, p in enumerate(phase) if i == 0 or phase[i - 1] != p])
-            margin = float(set_doc["candidates"][0]["pieces"][0]["design"]["discharge_gap"]) - 0.02
-            allc = np.vstack(list(clearances.values()))
-            plots.clearance_plot(np.arange(len(allc)), allc, [margin] * 4, out_dir / "clearance.png",
-                                 f"fast values of CheckInterference, exact within +-{chk.error_bound * 1e3:.1f} um",
-                                 xlabel="cycle sample (" + ", then ".join(clearances) + ")")
-            deadline = time.monotonic() + 30.0
-            while geo.geometry_id not in geometries:          # latched: here already, or on its way
-                if time.monotonic() > deadline:
-                    raise RuntimeError("the geometry was not received on the latched 'geometry' topic")
-                time.sleep(0.05)
-            published = geometries[geo.geometry_id]
-            turn = rotation_about_x(channel * published.summary.blade_pitch)      # published: channel 0
-            surfaces = {label: msg_to_mesh(m).apply_transform(turn)
-                        for label, m in zip(published.surface_labels, published.surfaces)}
             stock_png = pathlib.Path(res.export_path) / "stock.png"
             for name in ("stock.png", "stock.glb", "process.png"):   # the removal proof, the process
                 if (stock_png.parent / name).exists():
                     shutil.copyfile(stock_png.parent / name, out_dir / name)
-            export = read_plan(pathlib.Path(res.export_path) / label0)
-            plots.channel_view(surfaces, export.electrode_mesh,
-                               export.poses, out_dir / "channel.glb", out_dir / "channel.png")
+            pictures.wait(timeout)
         m = res.metrics
         print("\nSummary")
         print(f"  geometry     default blisk, id {geo.geometry_id[:12]}, channel {channel}, no design given")
@@ -339,6 +349,36 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=Fal
         print(f"  written      {res.export_path} (set.json, stock.png, process.png, one export per electrode), "
               f"{out_dir}/*.png (process.png: time and wear), {out_dir}/channel.glb")
     finally:
+        pictures.close()
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
+
+
+def _axis_pictures(plots, label, ex, traj, cycle_csv, out_dir):
+    """The first electrode's axis curves: as sent to the controller (against time), and along its certified cycle
+    (against the sample index, cf. Huang Fig. 7)."""
+    t = np.array([p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec for p in traj.points])
+    qt = np.array([p.positions for p in traj.points])
+    plots.axis_curves(t, qt, list(traj.joint_names), out_dir / "axes_vs_time.png", "time [s]",
+                      f"The {label} electrode's cycle as sent to the controller ({ex.duration:.1f} s)",
+                      marks=list(zip(ex.phase_names, ex.phase_start_times)))
+    names, q, phase = _cycle_csv(cycle_csv)
+    plots.axis_curves(np.arange(len(q)), q, names, out_dir / "axes_vs_index.png", "sample index",
+                      f"Axis values along the {label} electrode's certified cycle (cf. Huang Fig. 7)",
+                      marks=[(p, i) for i, p in enumerate(phase) if i == 0 or phase[i - 1] != p])
+
+
+def _channel_picture(plots, geometries, geometry_id, channel, export_dir, out_dir):
+    """The first electrode's swept positions in the channel (GLB and PNG), on the loader's latched geometry."""
+    deadline = time.monotonic() + 30.0
+    while geometry_id not in geometries:              # latched: here already, or on its way
+        if time.monotonic() > deadline:
+            raise RuntimeError("the geometry was not received on the latched 'geometry' topic")
+        time.sleep(0.05)
+    published = geometries[geometry_id]
+    turn = rotation_about_x(channel * published.summary.blade_pitch)      # published: channel 0
+    surfaces = {label: msg_to_mesh(m).apply_transform(turn)
+                for label, m in zip(published.surface_labels, published.surfaces)}
+    export = read_plan(export_dir)
+    plots.channel_view(surfaces, export.electrode_mesh, export.poses, out_dir / "channel.glb", out_dir / "channel.png")
