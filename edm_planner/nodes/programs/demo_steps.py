@@ -59,21 +59,32 @@ class Step:
             print(f"    done in {time.perf_counter() - self.t0:.1f} s", flush=True)
 
 
+class _Pending:
+    """A service call sent at once and answered later (:meth:`result`); every wait has a deadline and checks the
+    nodes alive."""
+
+    def __init__(self, node, srv_type, name, request, timeout, bringup):
+        self.node, self.name, self.timeout, self.bringup = node, name, timeout, bringup
+        self.client = node.create_client(srv_type, name)
+        self.deadline = time.monotonic() + timeout
+        while not self.client.wait_for_service(timeout_sec=0.5):
+            bringup.check_alive()
+            if time.monotonic() > self.deadline:
+                raise RuntimeError(f"service {name} not available after {timeout:.0f} s")
+        self.future = self.client.call_async(request)
+
+    def result(self):
+        while not self.future.done():
+            self.bringup.check_alive()
+            if time.monotonic() > self.deadline:
+                raise RuntimeError(f"service {self.name} did not answer within {self.timeout:.0f} s")
+            time.sleep(0.02)
+        self.node.destroy_client(self.client)
+        return self.future.result()
+
+
 def _call(node, srv_type, name, request, timeout, bringup):
-    client = node.create_client(srv_type, name)
-    deadline = time.monotonic() + timeout
-    while not client.wait_for_service(timeout_sec=0.5):
-        bringup.check_alive()
-        if time.monotonic() > deadline:
-            raise RuntimeError(f"service {name} not available after {timeout:.0f} s")
-    future = client.call_async(request)
-    while not future.done():
-        bringup.check_alive()
-        if time.monotonic() > deadline:
-            raise RuntimeError(f"service {name} did not answer within {timeout:.0f} s")
-        time.sleep(0.02)
-    node.destroy_client(client)
-    return future.result()
+    return _Pending(node, srv_type, name, request, timeout, bringup).result()
 
 
 def _action(node, action_type, name, goal, timeout, bringup, on_feedback=None):
@@ -255,6 +266,17 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=Fal
         delivered = next(c for c in set_doc["candidates"] if c["name"] == set_doc["delivered"])
         designs = {p["label"]: p for p in delivered["pieces"]}
         label0 = res.electrode_labels[0]
+        # the clearance checks asked for now: the interference_checker works on them while the axis_bridge times
+        # the cycles below (their steps then print what each answered)
+        checks = {}
+        for label in res.electrode_labels:
+            names, q, _ = _cycle_csv(pathlib.Path(res.export_path) / label / "cycle.csv")
+            req = CheckInterference.Request(geometry_id=geo.geometry_id, channel=channel,
+                                            electrode_id=designs[label]["electrode_id"],
+                                            electrode=_design_msg(designs[label]["design"]),
+                                            method=CheckInterference.Request.METHOD_FAST, axis_names=names)
+            req.axis_values = [AxisPoint(positions=row) for row in q.tolist()]
+            checks[label] = len(q), _Pending(node, CheckInterference, "check_interference", req, timeout, bringup)
         pictures.draw(_channel_picture, geometries, geo.geometry_id, channel,
                       pathlib.Path(res.export_path) / label0, out_dir)
         trajectories = []
@@ -286,18 +308,12 @@ def run(out_dir, channel, bringup, timeout=600.0, set_timeout=3600.0, follow=Fal
                 if ex.next_electrode:
                     print(f"    then change the tool: {ex.next_electrode}")
         clearances = {}
-        for label, plan_id in zip(res.electrode_labels, res.plan_ids):
+        for label in res.electrode_labels:
             with Step(f"CheckInterference: the {label} electrode along its whole cycle (fast method)"):
-                names, q, _ = _cycle_csv(pathlib.Path(res.export_path) / label / "cycle.csv")
-                req = CheckInterference.Request(geometry_id=geo.geometry_id, channel=channel,
-                                                electrode_id=designs[label]["electrode_id"],
-                                                electrode=_design_msg(designs[label]["design"]),
-                                                method=CheckInterference.Request.METHOD_FAST, axis_names=names)
-                req.axis_values = [AxisPoint(positions=row) for row in q.tolist()]
-                chk = _require(_call(node, CheckInterference, "check_interference", req, timeout, bringup),
-                               "CheckInterference")
+                samples, pending = checks[label]
+                chk = _require(pending.result(), "CheckInterference")
                 clearances[label] = np.array([[c.suction, c.pressure, c.hub, c.shroud] for c in chk.clearances])
-                print(f"    {len(q)} samples; smallest {clearances[label].min():.4f} mm (fast value, error bound "
+                print(f"    {samples} samples; smallest {clearances[label].min():.4f} mm (fast value, error bound "
                       f"{chk.error_bound * 1e3:.1f} um)")
         margin = float(set_doc["candidates"][0]["pieces"][0]["design"]["discharge_gap"]) - 0.02
         allc = np.vstack(list(clearances.values()))
