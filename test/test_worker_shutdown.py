@@ -58,3 +58,38 @@ def test_terminate_pool_stops_a_worker_being_spawned_by_another_thread():
         for process in set(multiprocessing.active_children()) - before:    # a failed run must not leave them
             process.kill()
             process.join(10)
+
+
+DIES_WHILE_STARTING = """
+import os
+import sys
+
+if __name__ == "__mp_main__":          # a spawned worker imports the program first: this one dies there
+    os._exit(3)
+
+if __name__ == "__main__":
+    from concurrent.futures.process import BrokenProcessPool
+    from edm_planner.machining.executors import LocalExecutor
+
+    pool = LocalExecutor(1, print, (bytes(8 << 20),))      # start-up data far beyond a pipe's buffer
+    setup_file = pool.setup_path
+    try:
+        pool.submit(len, "x").result(timeout=600)
+    except BrokenProcessPool:
+        print("the pool failed")
+    pool.shutdown(wait=False)
+    print("setup file left:", os.path.exists(setup_file))
+"""
+
+
+def test_a_worker_that_dies_while_it_starts_fails_the_pool_instead_of_hanging_it(tmp_path):
+    """CPython writes a spawned worker's start-up data into its pipe as the worker reads it: with the geometry
+    in it (megabytes), a worker that died first (here: while it imports the program, as one without a
+    __main__ guard does) left the pool in that write for ever. LocalExecutor sends it through a file."""
+    import subprocess
+    import sys
+
+    program = tmp_path / "program.py"
+    program.write_text(DIES_WHILE_STARTING)
+    done = subprocess.run([sys.executable, str(program)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert done.stdout.splitlines() == ["the pool failed", "setup file left: False"], done.stdout + done.stderr

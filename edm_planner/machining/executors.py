@@ -61,6 +61,7 @@ import concurrent.futures
 import logging
 import multiprocessing
 import os
+import pickle
 import queue
 import secrets
 import shutil
@@ -68,6 +69,7 @@ import sys
 import tempfile
 import threading
 import time
+import weakref
 
 from .set_progress import terminate_pool
 
@@ -134,9 +136,19 @@ class LocalExecutor:
         self.workers = int(workers)
         context = multiprocessing.get_context("spawn")
         self.reports = context.Queue() if reports else None
+        # the initializer and its arguments (the geometry: megabytes) reach the workers through a file, not
+        # through the pipe a spawned worker starts from: CPython writes a worker's whole start-up data into that
+        # pipe while the worker reads it, and a worker that dies before the end (its program has no __main__
+        # guard, an import fails, the OOM killer) left the pool blocked in that write for ever. With a few
+        # hundred bytes there the write never waits, the pool sees the dead worker and fails its futures
+        # (BrokenProcessPool).
+        with tempfile.NamedTemporaryFile(prefix="edm_planner_workers_", suffix=".pickle", delete=False) as f:
+            pickle.dump((initializer, tuple(initargs)), f, protocol=pickle.HIGHEST_PROTOCOL)
+        self.setup_path = f.name
+        self._setup_file = weakref.finalize(self, _remove_quietly, f.name)      # at shutdown, or at exit at the latest
         self._pool = concurrent.futures.ProcessPoolExecutor(
-            max_workers=self.workers, mp_context=context, initializer=initializer,
-            initargs=tuple(initargs) + (self.reports,))
+            max_workers=self.workers, mp_context=context, initializer=_set_up_from_file,
+            initargs=(f.name, self.reports))
         self.where = {}          # nothing to place: one machine
 
     def submit(self, fn, *args):
@@ -145,10 +157,16 @@ class LocalExecutor:
     def shutdown(self, wait=True, cancel_futures=True):
         self._pool.shutdown(wait=wait, cancel_futures=cancel_futures)
         self._close_reports()
+        self._remove_setup_file()
 
     def terminate(self):
         """Stop at once: the worker processes terminated, waiting futures fail (BrokenProcessPool)."""
         terminate_pool(self._pool)
+        self._remove_setup_file()
+
+    def _remove_setup_file(self):
+        """The start-up file, once no worker will start any more (the pool shut down or terminated)."""
+        self._setup_file()
 
     def _close_reports(self):
         if self.reports is not None:
@@ -157,6 +175,20 @@ class LocalExecutor:
 
     def describe(self):
         return f"{self.workers} local worker processes"
+
+
+def _remove_quietly(path):
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
+
+
+def _set_up_from_file(path, reports):
+    """A local worker's initializer: ``initializer(*initargs, reports)`` as :class:`LocalExecutor` wrote them."""
+    with open(path, "rb") as f:
+        initializer, initargs = pickle.load(f)
+    initializer(*initargs, reports)
 
 
 # -- Ray -------------------------------------------------------------------------------------------------
