@@ -126,12 +126,18 @@ def test_a_set_with_compensation_schedules_the_front_and_counts_the_electrodes(r
     low = {**DEFAULT_PROCESS.regimes, "finish": type(finish)(**{**finish.__dict__, "wear_ratio": 0.1})}
     process = type(DEFAULT_PROCESS)(**{**DEFAULT_PROCESS.__dict__, "regimes": low, "rough_and_finish": False,
                                        "wear_compensation": True, "max_compensated_wear": 0.1})
+    steps = []
     designer = SetDesigner(g, field, cycle_options=CycleOptions(tolerance=REAR_TOLERANCE), process=process,
-                           process_step=add_process)
+                           process_step=add_process, detail=steps.append)
     plan = copy.deepcopy(plan)
     before = [leg.samples.copy() for leg in plan.cycle.legs]
     piece = Piece("rear", "rear", design, plan, plan.cycle)
     report = add_process(designer, Candidate("front/rear", [piece]))
+    # the process step reports its steps in the last PROCESS_SHARE of the design's progress, rising
+    from edm_planner.machining.electrode_set import PROCESS_SHARE
+    assert [s.message.split(": ", 1)[1].split(" ")[0] for s in steps] == ["removed", "wear"]
+    assert all(1 - PROCESS_SHARE <= s.fraction <= 0.99 for s in steps)
+    assert [s.fraction for s in steps] == sorted(s.fraction for s in steps) and steps[0].fraction < steps[1].fraction
     (e,) = report.electrodes
     c = e.compensation
     assert c["depths_mm"], c

@@ -36,6 +36,11 @@ from .report import ProcessRun, compensation_schedule, leg_direction, plan_proce
 
 _log = logging.getLogger(__name__)
 
+#: where each step of :func:`add_process` ends, as a share of the process step's progress: roughly its share of
+#: the time on the default blisk (twins 1.3 s, their proof 2.3 s, removed volume 2.8 s of 6.4 s on an AMD EPYC
+#: Zen 4, 2026-11-29)
+_SHARES = {"twins": 0.2, "proof": 0.55, "volume": 0.98}
+
 
 def _rough_plan(piece, rp):
     """The roughing twin's Plan: the finishing plan's feed with the twin's electrode, id and feed certificate."""
@@ -63,6 +68,8 @@ def add_roughing(designer, candidate):
     process = designer.process
     twins, notes, twinned = [], [], []
     for i, p in enumerate(candidate.pieces):
+        designer.process_progress(_SHARES["twins"] * i / len(candidate.pieces),
+                                  f"{candidate.name}: the roughing twin of {p.label} and its certified cycle")
         try:
             rp = rough_piece(designer.blisk, designer.field, p, process, designer.cycle_options, designer._walls)
         except EdmError as e:                         # e.g. an offset that leaves no electrode
@@ -81,6 +88,8 @@ def add_roughing(designer, candidate):
         twinned.append(i)
     if not twins:
         return [], notes
+    designer.process_progress(_SHARES["twins"], f"{candidate.name}: the roughing proof of "
+                                                f"{len(twins)} twin(s) (material removal at the rough spark gap)")
     pool = designer._workers_pool()              # the sizing workers share out the wall samples, as in prove()
     report = simulate_removal(designer.blisk, rough_sweeps(twins), process.rough.spark_gap,
                               tolerance=designer.options.tolerance, samples=designer._wall_samples,
@@ -127,12 +136,15 @@ def add_process(designer, candidate, resolution=0.5):
             candidate.pieces = twins + candidate.pieces
         else:
             candidate.single_regime_reason = "; ".join(notes) or "no roughing twin"
+    designer.process_progress(_SHARES["proof"], f"{candidate.name}: removed volume, erosion time and wear of "
+                                                f"{len(candidate.pieces)} electrode(s)")
     runs = [ProcessRun(p.label, p.regime, np.asarray(p.plan.electrode_mesh.vertices),
                          np.asarray(p.plan.electrode_mesh.faces), np.asarray(p.plan.final_pose),
                          tuple(p.plan.axis_names), p.cycle) for p in candidate.pieces]
     candidate.process = plan_process(designer.blisk, runs, process, resolution=resolution,
                                      stock_mesh=getattr(designer, "stock_mesh", None))
     if process.wear_compensation:
+        designer.process_progress(_SHARES["volume"], f"{candidate.name}: wear compensation")
         add_wear_compensation(designer, candidate, runs)
     return candidate.process
 
