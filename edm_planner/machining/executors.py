@@ -61,6 +61,7 @@ import concurrent.futures
 import logging
 import multiprocessing
 import os
+import pathlib
 import pickle
 import queue
 import secrets
@@ -145,7 +146,8 @@ class LocalExecutor:
         with tempfile.NamedTemporaryFile(prefix="edm_planner_workers_", suffix=".pickle", delete=False) as f:
             pickle.dump((initializer, tuple(initargs)), f, protocol=pickle.HIGHEST_PROTOCOL)
         self.setup_path = f.name
-        self._setup_file = weakref.finalize(self, _remove_quietly, f.name)      # at shutdown, or at exit at the latest
+        # removed at shutdown, or at exit at the latest
+        self._setup_file = weakref.finalize(self, pathlib.Path(f.name).unlink, missing_ok=True)
         self._pool = concurrent.futures.ProcessPoolExecutor(
             max_workers=self.workers, mp_context=context, initializer=_set_up_from_file,
             initargs=(f.name, self.reports))
@@ -176,12 +178,6 @@ class LocalExecutor:
     def describe(self):
         return f"{self.workers} local worker processes"
 
-
-def _remove_quietly(path):
-    try:
-        os.unlink(path)
-    except FileNotFoundError:
-        pass
 
 
 def _set_up_from_file(path, reports):

@@ -11,15 +11,12 @@ forked child of the server ends with ``os._exit`` after its target, without ``at
 
 import atexit
 import os
-import sys
+
+from ...quick_exit import flush_standard_streams
 
 
 def _leave():
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (AttributeError, OSError, ValueError):     # no stream, or a closed one: nothing left to write
-            pass
+    flush_standard_streams()
     os._exit(0)
 
 
