@@ -324,3 +324,43 @@ def test_condition_flushing_and_generator_words_follow_the_cutting_legs(program)
         write_program([ProgramRun(timed, "rear", plan.plan_id)], "p", "g", "plan", program["machine"],
                       parse_dialect(doc, "code word"))
     assert e.value.code == ErrorCode.INTERNAL and "axis words without motion" in e.value.message
+
+
+def test_channel_passes_within_rounding_of_each_other_share_a_subprogram(program, monkeypatch):
+    """A channel's pass is timed on its own A values: its durations came out up to 3e-7 apart from another
+    channel's (positions 6e-9 rad), enough to flip a feed's last digit, and the text alone then made a
+    subprogram per channel. Passes within the tolerances share one; passes further apart do not."""
+    from edm_planner.cnc import post
+
+    posts = program["posts"]
+    arrays = posts[0].arrays
+    names = tuple(arrays.axis_names)
+    ia = names.index("A")
+    passes = [(a, b) for what, a, b, _, _ in post._channel_passes(arrays) if what == "pass"]
+    assert len(passes) == CHANNELS
+
+    def with_second_pass(dt_scale, da):
+        """The first electrode with its second channel's durations scaled and its inner A values moved."""
+        a, b = passes[1]
+        t = np.array(arrays.times, dtype=np.float64)
+        q = np.array(arrays.positions, dtype=np.float64)
+        t[a + 1:b + 1] = t[a] + np.cumsum(np.diff(t[a:b + 1]) * dt_scale)
+        t[b + 1:] += t[b] - arrays.times[b]
+        q[a + 1:b, ia] += da
+        return [replace(posts[0], arrays=replace(arrays, times=t, positions=q))] + list(posts[1:])
+
+    def subprograms(runs):
+        text, stats = write_program(runs, "prog", program["plan"].geometry_id, "blisk_program",
+                                    program["machine"], "iso_fanuc", "subprograms")
+        return stats.subprograms, stats.calls
+
+    assert subprograms(posts) == (1, 2 * CHANNELS)
+    # 4e-6 slower (feeds 0.01 lower: other text) and 1e-9 rad off: the same motion, one subprogram
+    close = with_second_pass(1 + 4e-6, 1e-9)
+    assert subprograms(close) == (1, 2 * CHANNELS)
+    monkeypatch.setattr(post, "SAME_PASS_TIME", 0.0)
+    assert subprograms(close)[0] >= 2, "the texts differ: the tolerance is what joins them"
+    monkeypatch.undo()
+    # beyond either tolerance: a subprogram of its own
+    assert subprograms(with_second_pass(1 + 1e-4, 0.0)) == (2, 2 * CHANNELS)
+    assert subprograms(with_second_pass(1.0, 1e-6)) == (2, 2 * CHANNELS)

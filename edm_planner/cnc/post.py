@@ -21,7 +21,12 @@ with its phase marks. Output: a program that
 * in ``subprograms`` structure, writes each distinct channel pass once as a subprogram in the
   coordinates of the first channel that runs it, and calls it in every channel after a local
   coordinate shift of A (G52): the program's size grows with the electrodes and their wear
-  compensation steps, not with the channels. ``flat`` (DNC) writes every block in the main program.
+  compensation steps, not with the channels. Two passes are the same when they have the same phase
+  marks, their local positions agree within :data:`SAME_PASS_SHARE` of the dialect's resolution and
+  their durations within :data:`SAME_PASS_TIME` (relative): each channel's pass is timed on its own A
+  values, which differ by the pitch, and its durations came out up to 3e-7 apart (positions 6e-9 rad),
+  enough to flip the last digit of a feed, so comparing the texts alone made a subprogram per channel
+  on some CPUs. ``flat`` (DNC) writes every block in the main program.
 
 :func:`check_program` reads the text back (:func:`read_program`, subprograms expanded) and refuses a
 program that breaks its dialect's limits or does not reproduce the trajectories within the stated
@@ -255,6 +260,25 @@ def _generator_off(dialect, writer, state):
         state["on"] = False
 
 
+#: share of the dialect's resolution (its last decimal, per axis) within which the local positions of two
+#: channel passes sharing a subprogram agree: one pass's text then says the other's points as well as its own
+SAME_PASS_SHARE = 0.01
+#: relative: channel passes whose point-to-point durations differ by no more share a subprogram (a feed's
+#: difference of 1e-5 is 36 ms in an hour)
+SAME_PASS_TIME = 1e-5
+
+
+def _same_pass(one, other, tolerance):
+    """Whether two channel passes ((local positions, durations, marks key) each) are the same motion.
+
+    ``tolerance`` (k,): per axis [mm or rad], for the positions.
+    """
+    (q1, dt1, key1), (q2, dt2, key2) = one, other
+    return (key1 == key2 and q1.shape == q2.shape and dt1.shape == dt2.shape
+            and bool(np.all(np.abs(q1 - q2) <= tolerance))
+            and bool(np.all(np.abs(dt1 - dt2) <= SAME_PASS_TIME * np.maximum(np.abs(dt1), np.abs(dt2)))))
+
+
 def _channel_passes(arrays):
     """Split a trajectory at its index legs: [(kind, first point, last point, channel, marks)]."""
     marks = list(arrays.phases or [])
@@ -322,6 +346,9 @@ def write_program(runs, name, geometry_id="", kind="plan", machine=None, dialect
     main = _Writer(d)
     main.number += d.block_increment          # the safety line is the first block
     subs, sub_text = [], {}                   # [(number, title, writer)], canonical text -> number
+    sub_passes = []                           # [(number, (local positions, durations, marks key))]
+    same = SAME_PASS_SHARE * np.array([10.0 ** -d.decimals(n) * (1.0 if n in LINEAR else math.pi / 180)
+                                       for n in names])
     total = sum(r.arrays.duration for r in runs)
     ia = names.index("A") if "A" in names else None
     for order, run in enumerate(runs):
@@ -363,19 +390,24 @@ def write_program(runs, name, geometry_id="", kind="plan", machine=None, dialect
             shift_vec = np.zeros(len(names))
             shift_vec[ia] = math.radians(shift)
             local = q[a:b + 1] - shift_vec
+            local_marks = _shifted_marks(marks, a)
+            motion = (local, np.diff(t[a:b + 1]), [(m.index, m.phase, m.label, m.regime, m.condition_code)
+                                                   for m in local_marks])
             sub, sub_stats, sub_state = _Writer(d), PostStats(), {}
-            _motion(d, names, local, t[a:b + 1], _shifted_marks(marks, a), sub, sub_stats, sub_state,
-                    channels=False)
+            _motion(d, names, local, t[a:b + 1], local_marks, sub, sub_stats, sub_state, channels=False)
             _generator_off(d, sub, sub_state)
             key = "\n".join(line.split(" ", 1)[1] if d.block_numbers and line.startswith("N") else line
                             for line in sub.lines if not line.startswith(d.comment_open))
             number = sub_text.get(key)
+            if number is None:
+                number = next((n for n, other in sub_passes if _same_pass(motion, other, same)), None)
             if number is None:
                 number = d.subprogram_first + len(subs)
                 if number > d.program_number_max:
                     raise EdmError(ErrorCode.INVALID_REQUEST, f"more subprograms than dialect {d.name}'s program "
                                                               f"numbers (up to {d.program_number_max})")
                 sub_text[key] = number
+                sub_passes.append((number, motion))
                 subs.append((number, f"CHANNEL PASS {run.label}", sub))
                 for name_ in ("blocks", "merged_points", "slowed_blocks", "added_seconds"):
                     setattr(stats, name_, getattr(stats, name_) + getattr(sub_stats, name_))
