@@ -179,7 +179,6 @@ class LocalExecutor:
         return f"{self.workers} local worker processes"
 
 
-
 def _set_up_from_file(path, reports):
     """A local worker's initializer: ``initializer(*initargs, reports)`` as :class:`LocalExecutor` wrote them."""
     with open(path, "rb") as f:
