@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import subprocess
 import sys
 
@@ -43,6 +44,8 @@ def test_demo_runs_end_to_end_and_writes_its_pictures(tmp_path):
                  "certified lower bound, whole path", "exact minimum, vertices at samples", "stock left",
                  "all nodes stopped"):
         assert word in text
+    # the set's EDM process step is a progress line of its own, past 80 %, naming the set
+    assert re.search(r"^ +(8\d|9\d)\.\d % .*front/rear: the EDM process", text, re.M), text
     # per electrode, side by side: the certified lower bound never above the exact minimum, surface by surface
     lines = text.splitlines()
     rows = [i for i, line in enumerate(lines) if "certified lower bound, whole path" in line]

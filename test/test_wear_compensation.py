@@ -136,6 +136,7 @@ def test_a_set_with_compensation_schedules_the_front_and_counts_the_electrodes(r
     # the process step reports its steps in the last PROCESS_SHARE of the design's progress, rising
     from edm_planner.machining.electrode_set import PROCESS_SHARE
     assert [s.message.split(": ", 1)[1].split(" ")[0] for s in steps] == ["removed", "wear"]
+    assert all(s.message.startswith("front/rear: ") for s in steps)
     assert all(1 - PROCESS_SHARE <= s.fraction <= 0.99 for s in steps)
     assert [s.fraction for s in steps] == sorted(s.fraction for s in steps) and steps[0].fraction < steps[1].fraction
     (e,) = report.electrodes

@@ -697,6 +697,8 @@ class SetDesigner:
                 result.message = (f"{result.closest.name} leaves the least stock (not to the tolerance; its plans are "
                                   f"certified and delivered, flagged); " + result.message)
         delivered = result.delivered
+        # no candidate's step from here on: the reports name the delivered set in their message
+        self._name, self._where = "", (0, 0, 0, 0)
         if delivered is not None and self.process is not None:
             self.process_progress(0.0, f"{delivered.name}: the EDM process (roughing twins, removed volume, "
                                        f"erosion time)")
