@@ -393,26 +393,26 @@ def write_program(runs, name, geometry_id="", kind="plan", machine=None, dialect
             local_marks = _shifted_marks(marks, a)
             motion = (local, np.diff(t[a:b + 1]), [(m.index, m.phase, m.label, m.regime, m.condition_code)
                                                    for m in local_marks])
-            sub, sub_stats, sub_state = _Writer(d), PostStats(), {}
-            _motion(d, names, local, t[a:b + 1], local_marks, sub, sub_stats, sub_state, channels=False)
-            _generator_off(d, sub, sub_state)
-            key = "\n".join(line.split(" ", 1)[1] if d.block_numbers and line.startswith("N") else line
-                            for line in sub.lines if not line.startswith(d.comment_open))
-            number = sub_text.get(key)
-            if number is None:
-                number = next((n for n, other in sub_passes if _same_pass(motion, other, same)), None)
-            if number is None:
-                number = d.subprogram_first + len(subs)
-                if number > d.program_number_max:
-                    raise EdmError(ErrorCode.INVALID_REQUEST, f"more subprograms than dialect {d.name}'s program "
-                                                              f"numbers (up to {d.program_number_max})")
-                sub_text[key] = number
-                sub_passes.append((number, motion))
-                subs.append((number, f"CHANNEL PASS {run.label}", sub))
-                for name_ in ("blocks", "merged_points", "slowed_blocks", "added_seconds"):
-                    setattr(stats, name_, getattr(stats, name_) + getattr(sub_stats, name_))
-                stats.max_merge_deviation = max(stats.max_merge_deviation, sub_stats.max_merge_deviation)
-            stats.points += sub_stats.points
+            number = next((n for n, other in sub_passes if _same_pass(motion, other, same)), None)
+            if number is None:                # a motion not seen before: its blocks are written (and merged)
+                sub, sub_stats, sub_state = _Writer(d), PostStats(), {}
+                _motion(d, names, local, t[a:b + 1], local_marks, sub, sub_stats, sub_state, channels=False)
+                _generator_off(d, sub, sub_state)
+                key = "\n".join(line.split(" ", 1)[1] if d.block_numbers and line.startswith("N") else line
+                                for line in sub.lines if not line.startswith(d.comment_open))
+                number = sub_text.get(key)
+                if number is None:
+                    number = d.subprogram_first + len(subs)
+                    if number > d.program_number_max:
+                        raise EdmError(ErrorCode.INVALID_REQUEST, f"more subprograms than dialect {d.name}'s "
+                                                                  f"program numbers (up to {d.program_number_max})")
+                    sub_text[key] = number
+                    sub_passes.append((number, motion))
+                    subs.append((number, f"CHANNEL PASS {run.label}", sub))
+                    for name_ in ("blocks", "merged_points", "slowed_blocks", "added_seconds"):
+                        setattr(stats, name_, getattr(stats, name_) + getattr(sub_stats, name_))
+                    stats.max_merge_deviation = max(stats.max_merge_deviation, sub_stats.max_merge_deviation)
+            stats.points += len(local) - 1
             main.block(d.channel_shift.format(a=_fmt(shift, d.rotary_decimals)))
             main.comment(f"CHANNEL {channel} PASS")
             main.block(d.subprogram_call.format(number=number))

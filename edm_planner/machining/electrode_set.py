@@ -373,8 +373,6 @@ class SetDesigner:
         self._where, self._name = (0, 1, 0, 1), ""
         self._sizing = ""                # what the sizing step tries: start, radial, circumferential
         self._fraction = 0.0             # the last fraction reported (reports never go back)
-        # the candidates' steps fill the progress up to here, the process step the rest
-        self._search_share = 1.0 - PROCESS_SHARE if process is not None else 1.0
         self._cancel = threading.Event()
         self._reports = None             # the workers' SetProgress records (a multiprocessing or a Ray queue)
         self._cands = []                 # the candidates of the design under way
@@ -446,6 +444,11 @@ class SetDesigner:
             elapsed = self._elapsed() if self.t0 is not None else 0.0
             self.detail(SetProgress(**{**where, **step}).timed(fraction, elapsed,
                                                                 self.options.time_budget - elapsed))
+
+    @property
+    def _search_share(self):
+        """The candidates' steps fill the progress up to here, the process step (with a process model) the rest."""
+        return 1.0 - PROCESS_SHARE if self.process is not None else 1.0
 
     def process_progress(self, share, message):
         """The process step's report: ``share`` (0 to 1) of its part of the progress done, and what it does now."""
