@@ -390,6 +390,9 @@ def test_execute_a_blisk_program_electrode_through_its_channels(bridge):
     check_cycle_trajectory(t, p, v, a, load_machine(default_machine_path()), np.vstack(expected), rests)
     cycle2 = slice(2 * (n - 1 + index_len), None)
     np.testing.assert_allclose(t[cycle2] - t[cycle2][0], single.times, atol=1e-9)
+    # the NC program the bridge wrote: the three channels' passes are one motion, one subprogram called thrice
+    nc = (bridge["exports"] / "prog-a.e0.nc").read_text()
+    assert nc.count("M98 P1001") == 3 and nc.count("\nO1001") == 1 and "O1002" not in nc, nc[:2000]
     # the whole-blisk electrode (60 channels, 59 index turns), timed only
     res = execute(bridge, "prog-all", dry_run=True, timeout=300)
     assert res.success, res.message
