@@ -197,6 +197,9 @@ class ExitSearch:
         c = states[:, 4] if self.options.axes >= 5 else states[:, 3]
         return state_poses(self.electrode.final_pose, states[:, :3], a, c, b)
 
+    #: solve the LP at every node, even where the warm start keeps the cushion (for comparisons: same steps)
+    lp_at_every_node = False
+
     #: the feature column's clearances are searched this far [mm] (beyond: reported as this, less the cover)
     FEATURE_REACH = 0.4
 
@@ -352,15 +355,22 @@ class ExitSearch:
         move = step * 2 * rho[0] + rho[2:].sum() * self.reach
         for it in range(iterations + 1):
             s0 = self._slack(self._candidates(state, x0[None], step, frame))[0]               # (m, 4)
-            # only points that can come near the smallest slack need a gradient
-            near = np.nonzero(s0.min(axis=1) <= s0.min() + 2 * move + 1e-3)[0]
+            rows = s0
             s0 = s0.reshape(-1)
             if s0.min() >= 0:
                 feasible.append((x0, float(s0.min()), s0))
                 if it > 0 and o.method != "max_min_distance" and s0.min() >= min(cap, predicted) - 0.002:
                     break                                  # the LP's step, confirmed by the field
+                if it == 0 and s0.min() >= cap and not self.lp_at_every_node:
+                    # the warm start keeps the cushion: the LP's one optimum is not to move (t = cap, and any
+                    # move costs smoothness), so no linearisation is needed; the same step as with it
+                    break
             if it == iterations:
                 break
+            # only points that can come near the smallest slack need a gradient (a row's minimum column by
+            # column: numpy's min along a short axis is ten times slower)
+            row_min = np.minimum(np.minimum(rows[:, 0], rows[:, 1]), np.minimum(rows[:, 2], rows[:, 3]))
+            near = np.nonzero(row_min <= s0.min() + 2 * move + 1e-3)[0]
             # forward differences: the field is trilinear, its cell gradient is what a step sees
             real = near[near < len(self.points)]              # the feature column comes last, if near
             moved = self._slack(self._candidates(state, x0 + np.diag(eps), step, frame), self.points[real],
