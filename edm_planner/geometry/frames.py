@@ -4,6 +4,7 @@ Convention (workpiece frame W): ``y = r cos(theta)``, ``z = r sin(theta)``.
 """
 
 import numpy as np
+from scipy.spatial import ConvexHull, QhullError
 from scipy.spatial.transform import Rotation
 
 
@@ -57,6 +58,20 @@ def is_rigid(pose, tolerance=1e-6):
     r = pose[:3, :3]
     return bool(np.abs(r.T @ r - np.eye(3)).max() <= tolerance and np.linalg.det(r) > 0
                 and np.array_equal(pose[3], [0, 0, 0, 1]))
+
+
+def hull_points(vertices):
+    """The vertices of the points' convex hull, in their input order (every point for a flat or degenerate set).
+
+    They stand for a whole solid wherever a function convex in the point is maximised over it: how far a
+    point v moves between two poses, |(P_k+1 - P_k) v|, or where the solid reaches along an axis (a linear
+    function's extremes, the same values as over every point).
+    """
+    v = np.ascontiguousarray(np.asarray(vertices, dtype=np.float64))
+    try:
+        return np.ascontiguousarray(v[ConvexHull(v).vertices])
+    except (QhullError, ValueError):              # flat or too few points: every one
+        return v
 
 
 def pose_difference(a, b):

@@ -16,10 +16,9 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError
 
 from ..constants import EXACT_TOLERANCE, RIGID_TOLERANCE
-from ..geometry.frames import rotation_about_x
+from ..geometry.frames import hull_points, rotation_about_x
 from . import SURFACES
 from . import fast as _fast
 from . import min_search as _search
@@ -64,11 +63,7 @@ def _vertex_moves(P, V):
     """
     if len(P) < 2:
         return np.zeros(0)
-    try:
-        V = np.ascontiguousarray(V[ConvexHull(V).vertices])
-    except (QhullError, ValueError):               # flat or too few points: all of them
-        pass
-    return _search._vertex_steps(P, V)
+    return _search._vertex_steps(P, hull_points(V))
 
 
 def _anchors(moves, stride, travel):

@@ -27,6 +27,7 @@ import numpy as np
 
 from ..budget import budget_clock
 from ..errors import ErrorCode
+from ..geometry.frames import hull_points
 from ..interference import SURFACES
 from ..interference.wall_features import triangle_grid
 from ..cnc.kinematics import state_poses
@@ -121,6 +122,18 @@ class SearchResult:
     reference: np.ndarray = None             # (n,) distance along the reference at each node [mm]
 
 
+def _row_minima(rows):
+    """(m,) minimum of each row of (m, 4) values: column by column (numpy's min along a short axis is ten
+    times slower; the same values)."""
+    return np.minimum(np.minimum(rows[:, 0], rows[:, 1]), np.minimum(rows[:, 2], rows[:, 3]))
+
+
+def _column_minima(rows):
+    """(4,) minimum of each column of (m, 4) values, from a transposed copy (the same values, ten times
+    sooner than numpy's strided reduction)."""
+    return np.ascontiguousarray(rows.T).min(axis=1)
+
+
 def _feature_vertices(mesh, angle=0.5, limit=3000):
     """Vertices on the mesh's sharp edges (dihedral angle above ``angle`` rad), at most ``limit``."""
     sharp = mesh.face_adjacency_edges[mesh.face_adjacency_angles > angle]
@@ -189,6 +202,10 @@ class ExitSearch:
         self.reach = float(np.linalg.norm(self.points, axis=1).max())    # lever of the rotations [mm]
         self.mesh_radius = float(np.linalg.norm(electrode.mesh.vertices, axis=1).max())
         self._feature_known = None               # (pose, feature clearance) of the last pose measured
+        # Objfun2's points (left / right faces), and the vertices that bound the electrode's axial extent:
+        # a linear function's extremes over a mesh lie on its convex hull
+        self._left, self._right = np.flatnonzero(self.labels == 0), np.flatnonzero(self.labels == 1)
+        self._extent = hull_points(electrode.mesh.vertices)
 
     # -- evaluation of candidate states ---------------------------------------------
     def _poses(self, states):
@@ -239,7 +256,7 @@ class ExitSearch:
 
     def _exit_reached(self, states, direction):
         poses = self._poses(states)
-        xs = np.einsum("pj,mj->pm", poses[:, 0, :3], self.electrode.mesh.vertices) + poses[:, 0, 3][:, None]
+        xs = np.einsum("pj,mj->pm", poses[:, 0, :3], self._extent) + poses[:, 0, 3][:, None]
         if direction > 0:
             return xs.min(axis=1) > self.blisk_x[1] + self.options.exit_distance
         return xs.max(axis=1) < self.blisk_x[0] - self.options.exit_distance
@@ -263,7 +280,8 @@ class ExitSearch:
         e_t = np.array([0.0, -e_r[2], e_r[1]])
         n1 = e_t - t * (t @ e_t)
         n1 /= np.linalg.norm(n1)
-        n2 = np.cross(t, n1)
+        # t x n1, written out (np.cross costs more than the rest of the frame)
+        n2 = np.array([t[1] * n1[2] - t[2] * n1[1], t[2] * n1[0] - t[0] * n1[2], t[0] * n1[1] - t[1] * n1[0]])
         return t, n1, n2
 
     def _candidates(self, state, incr, step, frame):
@@ -281,7 +299,7 @@ class ExitSearch:
         w = self.options.weights
         sw = np.array(list(w.smoothness[:2]) + [w.smoothness[2] / (self.k - 2)] * (self.k - 2))
         f1 = smoothness(incr, prev_incr, 2 * self.scale, sw)
-        f2 = margin(d[:, self.labels == 0, 0], d[:, self.labels == 1, 1], w.margin)
+        f2 = margin(d[:, self._left, 0], d[:, self._right, 1], w.margin)
         total = w.total[0] * f1 + w.total[1] * f2
         return total, f1, f2
 
@@ -367,10 +385,8 @@ class ExitSearch:
                     break
             if it == iterations:
                 break
-            # only points that can come near the smallest slack need a gradient (a row's minimum column by
-            # column: numpy's min along a short axis is ten times slower)
-            row_min = np.minimum(np.minimum(rows[:, 0], rows[:, 1]), np.minimum(rows[:, 2], rows[:, 3]))
-            near = np.nonzero(row_min <= s0.min() + 2 * move + 1e-3)[0]
+            # only points that can come near the smallest slack need a gradient
+            near = np.nonzero(_row_minima(rows) <= s0.min() + 2 * move + 1e-3)[0]
             # forward differences: the field is trilinear, its cell gradient is what a step sees
             real = near[near < len(self.points)]              # the feature column comes last, if near
             moved = self._slack(self._candidates(state, x0 + np.diag(eps), step, frame), self.points[real],
@@ -539,7 +555,7 @@ class ExitSearch:
             known = self._evaluated
             if known is not None and known[0] is incr:
                 d = known[1][None]                                    # evaluated by the node's solver
-                mins = d.min(axis=1)
+                mins = _column_minima(known[1])[None]
             else:
                 d, mins, _ = self._assess(new)
             self._evaluated = None

@@ -58,9 +58,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 import trimesh
-from scipy.spatial import ConvexHull
 
 from ..errors import EdmError, ErrorCode
+from ..geometry.frames import hull_points
 from ..machining.mesh_distance import MeshDistance  # exact: nearest triangle + pseudonormal sign
 
 _log = logging.getLogger(__name__)
@@ -288,19 +288,6 @@ def _check_pose(label, poses):
     if bad.any():
         raise _bad(f"cut {label!r}: pose {int(np.argmax(bad))} is not a rigid transform (rotation + translation)")
     return poses
-
-
-def hull_points(vertices):
-    """The vertices of the points' convex hull, in their input order (every point for a flat or degenerate set).
-
-    They stand for the whole solid in :func:`pose_travel_of` and :func:`thin_poses`: the move of a point v,
-    |(P_k+1 - P_k) v|, is convex in v, so its maximum over the solid is at a vertex of the convex hull.
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    try:
-        return v[ConvexHull(v).vertices]
-    except Exception:  # flat or degenerate mesh: every vertex
-        return v
 
 
 def _pair_moves(vertices, poses):
