@@ -190,6 +190,9 @@ def test_the_hull_points_stand_for_the_electrode_bit_for_bit(default_geometry):
     poses = np.array(poses)
     assert pose_travel_of(hull, poses) == pose_travel_of(V, poses)
     assert np.array_equal(thin_poses(hull, poses, 0.2), thin_poses(V, poses, 0.2))
+    # hull points passed as such are not hulled again: still the same moves
+    assert pose_travel_of(hull, poses, on_hull=True) == pose_travel_of(V, poses)
+    assert np.array_equal(thin_poses(hull, poses, 0.2, on_hull=True), thin_poses(V, poses, 0.2))
 
 
 def test_bad_input():

@@ -290,12 +290,13 @@ def _check_pose(label, poses):
     return poses
 
 
-def _pair_moves(vertices, poses):
+def _pair_moves(vertices, poses, on_hull=False):
     """Per consecutive pose pair: the largest move [mm] of an electrode point, helix-corrected (module doc).
 
-    Over the vertices of the points' convex hull (:func:`hull_points`; the hull of hull points is cheap).
+    Over the vertices of the points' convex hull (:func:`hull_points`); ``on_hull``: ``vertices`` are those
+    already (a hull costs 2 ms even of hull points, and a set's volumes asked for it about 90 times).
     """
-    v = hull_points(vertices)
+    v = vertices if on_hull else hull_points(vertices)
     D = poses[1:] - poses[:-1]
     moves = np.concatenate([  # in blocks of poses: (poses, vertices, 3) stays small
         np.linalg.norm(np.einsum("nij,mj->nmi", D[s:s + 256, :3, :3], v) + D[s:s + 256, None, :3, 3],
@@ -305,24 +306,28 @@ def _pair_moves(vertices, poses):
     return moves / np.cos(phi / 4.0)
 
 
-def pose_travel_of(vertices, poses):
-    """Largest move [mm] of an electrode point between consecutive poses, helix-corrected (see module doc)."""
+def pose_travel_of(vertices, poses, on_hull=False):
+    """Largest move [mm] of an electrode point between consecutive poses, helix-corrected (see module doc).
+
+    ``on_hull``: ``vertices`` are already their convex hull's (:func:`hull_points`).
+    """
     if len(poses) < 2:
         return 0.0
-    return float(_pair_moves(vertices, poses).max())
+    return float(_pair_moves(vertices, poses, on_hull).max())
 
 
-def thin_poses(vertices, poses, max_travel):
+def thin_poses(vertices, poses, max_travel, on_hull=False):
     """Indices of a subsequence of ``poses`` (first and last kept) whose consecutive moves stay about within
     ``max_travel`` [mm] (the sum of the skipped pairs' moves bounds it; the bracket measures the result).
 
     A cut's poses are sampled for the certificate (every 0.05 mm of travel); the volume field needs far
     fewer: the grown electrodes at poses t apart leave scallops g - sqrt(g^2 - t^2 / 4) deep (8 um for the
-    rough gap at a quarter of a 0.5 mm voxel), which the voxels cannot see.
+    rough gap at a quarter of a 0.5 mm voxel), which the voxels cannot see. ``on_hull``: ``vertices`` are
+    already their convex hull's (:func:`hull_points`).
     """
     if len(poses) < 3:
         return np.arange(len(poses))
-    moves = _pair_moves(vertices, poses)
+    moves = _pair_moves(vertices, poses, on_hull)
     keep, run = [0], 0.0
     for k, m in enumerate(moves):
         if run + m > max_travel and run > 0.0:
@@ -492,8 +497,8 @@ def removed_volumes(blank, cuts, resolution=0.5, sdf_spacing=None, pose_travel=N
         if pose_travel is None and key not in hulls:
             hulls[key] = hull_points(V)        # once per mesh: 20 ms for an electrode of 29 430 vertices
         if max_travel is not None and pose_travel is None:
-            P = P[thin_poses(hulls[key], P, _positive("max_travel", max_travel))]
-        d = pose_travel / 2 if pose_travel is not None else pose_travel_of(hulls[key], P) / 2
+            P = P[thin_poses(hulls[key], P, _positive("max_travel", max_travel), on_hull=True)]
+        d = pose_travel / 2 if pose_travel is not None else pose_travel_of(hulls[key], P, on_hull=True) / 2
         prepared.append((c, V, F, P, gap, d, key))
 
     # distance grids: one per mesh, wide enough that outside it every voxel is surely out
