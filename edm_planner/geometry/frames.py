@@ -1,4 +1,5 @@
-"""Cylindrical <-> Cartesian coordinates, rotations about the blisk axis X, distances between poses.
+"""Cylindrical <-> Cartesian coordinates, rotations about the blisk axis X, distances between poses, and the
+hull points that bound how far a solid moves between them.
 
 Convention (workpiece frame W): ``y = r cos(theta)``, ``z = r sin(theta)``.
 """

@@ -404,13 +404,14 @@ def _feature_kernel(P, start, pts, surf, coarse_start, fine_start, coarse_centre
     from the cube's centre; where none has d - radius below the bound the cube
     is done (an exact nearest-triangle search of the centre first cost more
     than it saved: the default plan's search, certificate and re-check calls
-    took 0.21-0.24 s with it, 0.13 s without, one thread, AMD Zen 4). The samples are measured against the triangles kept, sorted
-    by d: a sample stops at the first triangle with d - radius above its
-    nearest so far (less 1e-9 mm, so that rounding cannot let a skipped
-    triangle be nearer), so the result is the exact minimum over all pairs,
-    bit for bit what a search of every triangle gives. Poses run in parallel on ``workers`` threads, each with
-    scratch arrays of its own (one entry per triangle), made once rather than
-    per pose.
+    took 0.21-0.24 s with it, 0.13 s without, one thread, AMD Zen 4). The
+    samples are measured against the triangles kept, sorted by d: a sample
+    stops at the first triangle with d - radius above its nearest so far (less
+    1e-9 mm, so that rounding cannot let a skipped triangle be nearer), so the
+    result is the exact minimum over all pairs, bit for bit what a search of
+    every triangle gives. Poses run in parallel on ``workers`` threads, each
+    with scratch arrays of its own (one entry per triangle), made once rather
+    than per pose.
     """
     n = P.shape[0]
     out = np.empty((n, 2))

@@ -372,9 +372,8 @@ class ExitSearch:
         # no point moves more than this within the trust region (a slack is 1-Lipschitz in the move)
         move = step * 2 * rho[0] + rho[2:].sum() * self.reach
         for it in range(iterations + 1):
-            s0 = self._slack(self._candidates(state, x0[None], step, frame))[0]               # (m, 4)
-            rows = s0
-            s0 = s0.reshape(-1)
+            rows = self._slack(self._candidates(state, x0[None], step, frame))[0]             # (m, 4)
+            s0 = rows.reshape(-1)
             if s0.min() >= 0:
                 feasible.append((x0, float(s0.min()), s0))
                 if it > 0 and o.method != "max_min_distance" and s0.min() >= min(cap, predicted) - 0.002:
