@@ -150,3 +150,39 @@ def test_the_server_runs_every_atexit_handler_then_leaves_without_the_teardown(t
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stdout == "flushed", done.stderr
     assert (tmp_path / "atexit").exists() and not (tmp_path / "teardown").exists()
+
+
+def test_a_killed_node_process_reports_its_signal_to_every_thread_that_polls_it():
+    """multiprocessing reads a forked process's exit status from the fork server's pipe once; threads that poll
+    and wait at the same moment must all get SIGKILL's -9 (a second reader once got 255, "the server was
+    killed", and make demo's client would have named the wrong cause)."""
+    import threading
+    import time
+
+    from edm_planner.nodes.programs.bringup import _CONTEXT, NodeProcess
+
+    for _ in range(12):
+        process = _CONTEXT.Process(target=time.sleep, args=(120,), daemon=True)
+        process.start()
+        node = NodeProcess(process)
+        assert node.poll() is None
+        os.kill(node.pid, signal.SIGKILL)
+        start, seen = threading.Barrier(8), []
+
+        def waiter():
+            start.wait()
+            seen.append(node.wait(timeout=30))
+
+        def poller():
+            start.wait()
+            deadline = time.monotonic() + 30
+            while (code := node.poll()) is None:
+                assert time.monotonic() < deadline, "the killed process was never reported"
+            seen.append(code)
+
+        threads = [threading.Thread(target=waiter if i % 2 else poller) for i in range(8)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(timeout=60)
+        assert seen == [-signal.SIGKILL] * 8 and node.returncode == -signal.SIGKILL

@@ -17,12 +17,14 @@ first and import its own modules while the server imports the nodes'.
 import atexit
 import importlib
 import multiprocessing
+import multiprocessing.connection
 import multiprocessing.forkserver
 import os
 import pathlib
 import signal
 import subprocess
 import sys
+import threading
 
 from ...ros.shared import config_directory
 
@@ -57,10 +59,17 @@ def _run_node(name, argv, environ, log_path):
 
 
 class NodeProcess:
-    """A node forked by the server: the part of :class:`subprocess.Popen` that programs and tests use."""
+    """A node forked by the server: the part of :class:`subprocess.Popen` that programs and tests use.
+
+    Safe to poll and wait on from several threads (a program's call loop checks its nodes while another
+    thread waits for one): multiprocessing reads a forked process's exit status from the server's pipe once,
+    and a second thread reading at the same moment found the pipe empty and took it for a killed server, exit
+    code 255 instead of -9 (seen once in ``test_faults``); here one thread at a time reads it.
+    """
 
     def __init__(self, process):
         self._process = process
+        self._lock = threading.Lock()
 
     @property
     def pid(self):
@@ -69,16 +78,22 @@ class NodeProcess:
     @property
     def returncode(self):
         """The exit code, minus the signal that ended it, or None while it runs (as ``Popen.returncode``)."""
-        return self._process.exitcode
+        return self.poll()
 
     def poll(self):
-        return self._process.exitcode
+        with self._lock:
+            code = self._process.exitcode
+            if code is not None:
+                self._process.join(0)   # the status is read: only multiprocessing's list of children is left
+            return code
 
     def wait(self, timeout=None):
-        self._process.join(timeout)
-        if self._process.exitcode is None:
+        # wait for the status without reading it (any thread may), then read it under the lock
+        multiprocessing.connection.wait([self._process.sentinel], timeout)
+        code = self.poll()
+        if code is None:
             raise subprocess.TimeoutExpired(self._process.name, timeout)
-        return self._process.exitcode
+        return code
 
     def send_signal(self, sig):
         try:
