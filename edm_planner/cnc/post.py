@@ -268,13 +268,18 @@ SAME_PASS_SHARE = 0.01
 SAME_PASS_TIME = 1e-5
 
 
+def _resolution(dialect, names):
+    """(k,) the dialect's last decimal per axis, in mm or rad (its rotary axes are written in degrees)."""
+    return np.array([10.0 ** -dialect.decimals(n) * (1.0 if n in LINEAR else math.pi / 180) for n in names])
+
+
 def _same_pass(one, other, tolerance):
     """Whether two channel passes ((local positions, durations, marks key) each) are the same motion.
 
     ``tolerance`` (k,): per axis [mm or rad], for the positions.
     """
     (q1, dt1, key1), (q2, dt2, key2) = one, other
-    return (key1 == key2 and q1.shape == q2.shape and dt1.shape == dt2.shape
+    return (key1 == key2 and q1.shape == q2.shape
             and bool(np.all(np.abs(q1 - q2) <= tolerance))
             and bool(np.all(np.abs(dt1 - dt2) <= SAME_PASS_TIME * np.maximum(np.abs(dt1), np.abs(dt2)))))
 
@@ -347,8 +352,7 @@ def write_program(runs, name, geometry_id="", kind="plan", machine=None, dialect
     main.number += d.block_increment          # the safety line is the first block
     subs, sub_text = [], {}                   # [(number, title, writer)], canonical text -> number
     sub_passes = []                           # [(number, (local positions, durations, marks key))]
-    same = SAME_PASS_SHARE * np.array([10.0 ** -d.decimals(n) * (1.0 if n in LINEAR else math.pi / 180)
-                                       for n in names])
+    same = SAME_PASS_SHARE * _resolution(d, names)
     total = sum(r.arrays.duration for r in runs)
     ia = names.index("A") if "A" in names else None
     for order, run in enumerate(runs):
@@ -658,13 +662,11 @@ def check_program(text, dialect, reference=None):
     if len(reference) != len(back["trajectories"]):
         fail(f"{len(back['trajectories'])} electrodes read back, {len(reference)} written")
     names = back["axis_names"]
+    res, w = 0.5 * _resolution(d, names) + 1e-9, _weights(d, names)
     for k, (arrays, tr) in enumerate(zip(reference, back["trajectories"])):
         q = np.asarray(arrays.positions, dtype=np.float64)
-        res = np.array([0.5 * 10.0 ** -d.decimals(n) * (1.0 if n in LINEAR else math.pi / 180) for n in names])
-        res = res + 1e-9
         got = tr["positions"]
         j = prev = 0
-        w = _weights(d, names)
         for p_i, p in enumerate(got):
             while j < len(q) and np.any(np.abs(q[j] - p) > res * 2.0001):
                 j += 1
