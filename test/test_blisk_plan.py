@@ -259,9 +259,10 @@ def test_on_a_ray_cluster_a_group_whose_worker_is_killed_is_run_again(cluster, w
     running = []
     while not running and thread.is_alive() and time.monotonic() < deadline:
         running = task_processes(nodes)
-        time.sleep(0.05)
+        time.sleep(0.01)
     assert running, "no group task was seen running"
-    time.sleep(1.0)                                   # inside the task (seconds of planning)
+    # killed as soon as it is seen, inside the task (a channel's plan, about a second): a kill after it had
+    # finished would not test the re-run (the worker check below fails then)
     os.kill(running[0], signal.SIGKILL)
     thread.join(DEADLINE)
     assert not thread.is_alive() and not failure, failure
