@@ -12,12 +12,19 @@ import pytest
 # Before anything initialises rclpy: keep DDS on this machine and away from
 # other test runs (a domain from the process id, unless the caller set one).
 # Under pytest-xdist each worker inherits the controller's domain and moves to
-# one of its own (worker gw<i>: + 50 i), so the workers' nodes never meet.
+# one of its own (worker gw<i>: + step i, within 1..100), so the workers' nodes never meet. The steps keep
+# every pair of workers apart by none of the differences the tests' own domains make (the demo's + 101 and
+# + 103, the bring-up's + 157 and + 171, modulo 232: 2, 14, 54, 56, 61, 68, 70, 75).
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
 WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
+WORKER_STEP = {1: 0, 2: 50, 3: 33, 4: 20, 5: 20}
 if WORKER:
-    os.environ["ROS_DOMAIN_ID"] = str((int(os.environ["ROS_DOMAIN_ID"]) - 1 + 50 * int(WORKER[2:])) % 100 + 1)
+    count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "2"))
+    if count not in WORKER_STEP:
+        raise RuntimeError(f"{count} pytest-xdist workers: the ROS domains of this suite are laid out for 1 to 5")
+    os.environ["ROS_DOMAIN_ID"] = str((int(os.environ["ROS_DOMAIN_ID"]) - 1 + WORKER_STEP[count] * int(WORKER[2:]))
+                                      % 100 + 1)
 os.environ.setdefault("AMENT_PREFIX_PATH", sys.prefix)
 # The suite is an entry point: before anything initialises rclpy or imports a kernel module, the process
 # set-up the nodes do (edm_planner/ros/startup.py): DDS on loopback UDP in this process and every child it
@@ -38,8 +45,11 @@ def pytest_configure(config):
 
 #: the files that run longest, started first: with one file per worker (``--dist loadfile``, files handed
 #: out in collection order) a long file started last keeps one core busy alone at the end of the run
-LONG_FILES = ("test_demo.py", "test_electrode_set_node.py", "test_colcon_workspace.py", "test_plan_export.py",
-              "test_blisk_program.py", "test_cycle_execution.py", "test_machining_cycle.py")
+LONG_FILES = ("test_colcon_workspace.py", "test_certificate_truth.py", "test_fuzz_services.py",
+              "test_electrode_set_node.py", "test_blisk_plan.py", "test_demo.py", "test_step_import.py",
+              "test_planner.py", "test_ray_scaleout.py", "test_machining_cycle.py", "test_blisk_program.py",
+              "test_cycle_execution.py", "test_blisk_scan.py", "test_set_piece_cycle.py",
+              "test_exact_verification.py", "test_actions.py", "test_plan_export.py")
 
 
 #: seconds before a test's deadline at which the stacks of its children are printed (they are killed after)
