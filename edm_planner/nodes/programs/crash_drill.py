@@ -254,9 +254,7 @@ def run(sets=4, rounds=2, deadline=180.0, log_dir=None, field_cache=None, progre
     t_start = time.monotonic()
 
     def kill_busy(s, node, r, k):
-        # a spread of moments in the start-up (0.2 .. 0.8 s of CPU; the lightest node, the bridge, starts in about
-        # 1 s): imports, the DDS participant, the latched geometry
-        cpu = 0.2 + (7 * k + 3 * r) % 4 * 0.2
+        spread = (7 * k + 3 * r) % 4                 # a different moment for each kill
         load = None
         if node == "geometry_loader":
             copy = work / f"round{r}_{s.name}"
@@ -265,11 +263,14 @@ def run(sets=4, rounds=2, deadline=180.0, log_dir=None, field_cache=None, progre
             answered_all(prober, [(s.name, node)], deadline)            # up, so that the load reaches it
             load = prober.send(s.name, node, LoadGeometry.Request(path=str(copy / "default_blisk.yaml")))
             # a load takes about 0.25 s of CPU: killed 0.03 .. 0.09 s into it
-            cpu = 0.03 + (7 * k + 3 * r) % 4 * 0.02
+            cpu = 0.03 + spread * 0.02
             how = "loading a blisk"
         else:
             s.kill9(node)
             s.start(node)
+            # 0.2 .. 0.8 s of CPU into the start-up (the lightest node, the bridge, starts in about 1 s): imports,
+            # the DDS participant, the latched geometry
+            cpu = 0.2 + spread * 0.2
             how = "starting up"
         busy = wait_busy(s.procs[node].pid, cpu)
         s.kill9(node)
