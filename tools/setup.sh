@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Bring .venv up to date: pinned dependencies, the ROS wheel fixes, the
-# pinned developer and test tools (colcon), the interface package,
+# Bring .venv up to date: pinned dependencies and the pinned developer and test tools (colcon)
+# (by uv), the ROS wheel fixes, the interface package,
 # edm_planner installed in the ament layout, its bytecode and its numba kernels compiled
 # into numba's cache.
 # Each step runs only when its inputs changed (stamps hold content hashes),
@@ -27,20 +27,43 @@ if [ ! -x "$VENV/bin/python" ]; then
   "$PY" -m venv "$VENV"
 fi
 
-h=$(hash_of requirements.txt constraints.txt)
+# The pinned dependencies and the developer and test tools (colcon: it must run with the Python that has the
+# ROS wheels), in one step by uv (pinned in requirements-setup.txt): on a new clone 41 s where pip took 109 s
+# (pip unpacks and compiles the 2.4 GB serially on one core; uv in parallel, the same files). uv does not read
+# pip's configuration: its index and find-links settings are passed on (pip_sources), and where uv fails
+# (an index only pip can reach, no writable cache) pip installs the same pins.
+pip_sources() {
+  # pip's merged settings (its files, PIP_CONFIG_FILE, PIP_* variables); per option the variable over the
+  # install section over the global one, as pip ranks them
+  "$VENV/bin/pip" config list 2>/dev/null | "$VENV/bin/python" -c '
+import ast, sys
+rank, got = {"global": 0, "install": 1, ":env:": 2}, {}
+for line in sys.stdin:
+    key, _, value = line.strip().partition("=")
+    section, _, option = key.rpartition(".")
+    if section in rank and option in ("index-url", "extra-index-url", "find-links") and value:
+        if rank[section] >= got.get(option, (-1, ""))[0]:
+            got[option] = (rank[section], ast.literal_eval(value))
+for option in ("index-url", "extra-index-url", "find-links"):
+    for url in got.get(option, (0, ""))[1].split():
+        print("--" + option)
+        print(url)
+'
+}
+h=$(hash_of requirements-setup.txt requirements.txt requirements-dev.txt constraints.txt)
 if ! fresh deps "$h"; then
-  echo "setup: installing pinned dependencies (about 30 s)"
-  pip_quiet install -r requirements.txt -c constraints.txt
+  echo "setup: installing the pinned dependencies and developer tools (about 40 s on a new clone)"
+  pip_quiet install -r requirements-setup.txt
+  mapfile -t sources < <(pip_sources)
+  if ! "$VENV/bin/uv" pip install --quiet --python "$VENV/bin/python" --compile-bytecode \
+        --index-strategy unsafe-best-match "${sources[@]}" \
+        -r requirements.txt -r requirements-dev.txt -c constraints.txt > build/uv.log 2>&1; then
+    tail -5 build/uv.log
+    echo "setup: uv could not install them (build/uv.log); pip installs the same pins (about 2 minutes)"
+    pip_quiet install -r requirements.txt -r requirements-dev.txt -c constraints.txt
+  fi
   "$VENV/bin/python" tools/fix_ros_wheels.py
   stamp deps "$h"
-fi
-
-# developer and test tools (colcon), in the same venv: colcon builds with the Python that has the ROS wheels
-h=$(hash_of requirements-dev.txt constraints.txt)
-if ! fresh dev "$h"; then
-  echo "setup: installing the pinned developer and test tools (colcon, about 10 s)"
-  pip_quiet install -r requirements-dev.txt -c constraints.txt
-  stamp dev "$h"
 fi
 
 h=$(hash_of $(find msg_defs -type f | sort) requirements.txt)
