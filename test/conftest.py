@@ -45,8 +45,10 @@ def pytest_configure(config):
 
 #: the files that run longest, started first: with one file per worker (``--dist loadfile``, files handed
 #: out in collection order) a long file started last keeps one core busy alone at the end of the run
+#: (test_cpu_variants.py: 10 s with numba's cache of the other CPU, 2 to 2.5 min on a new clone, which has none)
 LONG_FILES = ("test_colcon_workspace.py", "test_certificate_truth.py", "test_fuzz_services.py",
-              "test_electrode_set_node.py", "test_blisk_plan.py", "test_demo.py", "test_step_import.py",
+              "test_electrode_set_node.py", "test_cpu_variants.py", "test_blisk_plan.py", "test_demo.py",
+              "test_step_import.py",
               "test_planner.py", "test_ray_scaleout.py", "test_machining_cycle.py", "test_blisk_program.py",
               "test_cycle_execution.py", "test_blisk_scan.py", "test_set_piece_cycle.py",
               "test_exact_verification.py", "test_actions.py", "test_plan_export.py")
