@@ -11,28 +11,53 @@ No rclpy.
 """
 
 import atexit
+import faulthandler
 import os
 import sys
 import threading
 
+#: how long :func:`exit_now` lets the threads' joins and the ``atexit`` handlers take [s] before it prints every
+#: thread's stack and leaves without them: a thread that never ends must not keep the program (and a caller
+#: reading its output to the end) waiting for ever
+EXIT_DEADLINE = 60.0
 
-def exit_now(status):
+
+def exit_now(status, deadline=EXIT_DEADLINE):
     """End the process with ``status`` (an int, or None for 0) after what a normal exit does that matters.
 
     In Python's own order: the non-daemon threads joined (``threading._shutdown``, which also runs the exit hooks
     of :mod:`concurrent.futures`' executors), the ``atexit`` handlers (logging's flush, :mod:`multiprocessing`'s
     children, the finalizers of temporary directories, Ray's shutdown), then stdout and stderr flushed. A failure
-    of any of these falls back to the normal exit, which retries what is left.
+    of any of these falls back to the normal exit, which retries what is left. Whatever of it still runs after
+    ``deadline`` seconds (a thread stuck in a call that never returns) is reported with every thread's stack on
+    stderr, and the process ends with ``status`` all the same.
     """
     code = 0 if status is None else status
     if not isinstance(code, int):          # SystemExit's convention: anything else is printed, status 1
         raise SystemExit(code)
+    watchdog = threading.Timer(deadline, _leave_stuck, args=(code, deadline))
+    watchdog.daemon = True                 # not among the threads the exit joins; it ends with the process
+    watchdog.start()
     try:
         threading._shutdown()
         atexit._run_exitfuncs()
     except BaseException:
         raise SystemExit(code)
     flush_standard_streams()
+    os._exit(code)
+
+
+def _leave_stuck(code, deadline):
+    """The exit's deadline passed: name the threads still running, print every thread's stack, end the process."""
+    left = [t.name for t in threading.enumerate()
+            if t is not threading.current_thread() and t is not threading.main_thread() and t.is_alive()]
+    flush_standard_streams()
+    try:
+        print(f"exit: not done after {deadline:g} s (threads still running: {', '.join(left) or 'none'}); "
+              "every thread's stack:", file=sys.stderr, flush=True)
+        faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+    except (AttributeError, OSError, ValueError):          # no stderr left to write to: end all the same
+        pass
     os._exit(code)
 
 

@@ -67,6 +67,35 @@ def report_children(out=None):
     out.flush()
 
 
+def pipe_holders(stream):
+    """(pid, command line) of every process with the pipe of ``stream`` (a file object, our end) open.
+
+    A caller reading a child's output to its end waits for the last of them: the child, or anything that inherited
+    the pipe from it and still runs.
+    """
+    want = os.readlink(f"/proc/self/fd/{stream.fileno()}")          # pipe:[inode]
+    holders = []
+    for entry in pathlib.Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            if any(os.readlink(fd) == want for fd in (entry / "fd").iterdir()):
+                cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").strip()
+                holders.append((int(entry.name), cmd))
+        except OSError:                                             # ended meanwhile, or not ours to read
+            continue
+    return holders
+
+
+def holders_report(stream):
+    """The processes holding ``stream``'s pipe, each with its Python stacks (py-spy), as text for a failure."""
+    lines = []
+    for pid, cmd in pipe_holders(stream):
+        lines.append(f"--- pid {pid} holds the pipe: {cmd[:300]}")
+        lines.append(_py_spy(pid) or "(py-spy could not attach)")
+    return "\n".join(lines) or "no process holds the pipe any more"
+
+
 def forget_all():
     with _lock:
         CHILDREN.clear()

@@ -122,13 +122,19 @@ def test_demo_interrupted_stops_every_node_and_exits_non_zero(tmp_path):
         running = processes_of(env["HOME"])
         assert len(running) >= 5, running                # the demo and its four nodes
         proc.send_signal(signal.SIGINT)
-        text = output.rest(timeout=120)
+        try:
+            text = output.rest(timeout=120)
+        except TimeoutError as exc:       # who keeps the output open, and where each of them is stuck
+            from hang_report import holders_report
+            raise AssertionError(f"{exc}\ndemo {'running' if proc.poll() is None else f'exited {proc.returncode}'}; "
+                                 f"{holders_report(proc.stdout)}") from exc
         proc.wait(timeout=30)
     finally:
         if proc.poll() is None:
             proc.kill()
     assert proc.returncode == 130, text
     assert "interrupted" in text and "all nodes stopped" in text
+    assert "exit: not done after" not in text, text          # its exit needed no deadline (quick_exit's watchdog)
     assert processes_of(env["HOME"]) == [], running
 
 
@@ -148,3 +154,20 @@ def test_the_demos_pictures_are_drawn_in_their_thread_in_order_and_a_failure_rea
         pictures.close()
     assert [d[:2] for d in drawn] == [(1, "edm_planner.records.plots"), (3, "edm_planner.records.plots")]
     assert {d[2] for d in drawn} == {"demo-pictures_0"}
+
+
+def test_the_failure_report_names_the_process_that_keeps_an_output_open():
+    """What the interrupted demo's test reports when the output does not end: the process still holding the pipe."""
+    from hang_report import holders_report, pipe_holders
+
+    shell = subprocess.Popen(["bash", "-c", "sleep 60 & echo started"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert shell.stdout.readline() == "started\n"
+        shell.wait(timeout=30)                           # the shell is gone; the sleep it left keeps the pipe open
+        holders = pipe_holders(shell.stdout)
+        assert [cmd for _, cmd in holders] == ["sleep 60"], holders
+        assert f"pid {holders[0][0]} holds the pipe: sleep 60" in holders_report(shell.stdout)
+    finally:
+        for pid, _ in pipe_holders(shell.stdout):
+            os.kill(pid, 9)
+        shell.stdout.close()

@@ -42,3 +42,26 @@ def test_exit_now_of_a_message_exits_as_systemexit_does():
     done = subprocess.run([sys.executable, "-c", "from edm_planner.quick_exit import exit_now; exit_now('bad input')"],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 1 and done.stderr.strip() == "bad input"
+
+
+STUCK = """
+import sys, threading
+from edm_planner.quick_exit import exit_now
+
+
+def waits_for_ever():                                   # a non-daemon thread whose call never returns
+    threading.Event().wait()
+
+
+threading.Thread(target=waits_for_ever, name="stuck-worker").start()
+print("main done", flush=True)
+exit_now(5, deadline=float(sys.argv[1]))
+"""
+
+
+def test_a_thread_that_never_ends_does_not_keep_the_program_its_stack_is_printed():
+    done = subprocess.run([sys.executable, "-c", STUCK, "1.0"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 5, done.stderr
+    assert done.stdout == "main done\n"
+    assert "exit: not done after 1 s (threads still running: stuck-worker)" in done.stderr
+    assert "in waits_for_ever" in done.stderr, done.stderr          # the stuck thread's own frame

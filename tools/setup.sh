@@ -68,7 +68,7 @@ fi
 
 h=$(hash_of $(find msg_defs -type f | sort) requirements.txt)
 if ! fresh msgs "$h" || [ ! -d "$VENV/share/edm_planner_msgs" ]; then
-  echo "setup: building the interface package edm_planner_msgs (about 30 s)"
+  echo "setup: building the interface package edm_planner_msgs (about a minute)"
   export VIRTUAL_ENV=$VENV
   cmake -S msg_defs -B build/edm_planner_msgs -DCMAKE_INSTALL_PREFIX="$VENV" \
     -DCMAKE_PREFIX_PATH="$VENV" -DPython3_EXECUTABLE="$VENV/bin/python" \
