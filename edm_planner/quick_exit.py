@@ -12,6 +12,7 @@ No rclpy.
 
 import atexit
 import faulthandler
+import logging
 import os
 import sys
 import threading
@@ -21,6 +22,12 @@ import threading
 #: reading its output to the end) waiting for ever
 EXIT_DEADLINE = 60.0
 
+#: seconds after the deadline at which faulthandler's own thread (C, no Python lock) dumps every stack and ends
+#: the process with status 1, should the report itself be stuck (a lock of logging held by a stuck thread)
+BACKSTOP = 5.0
+
+_log = logging.getLogger(__name__)
+
 
 def exit_now(status, deadline=EXIT_DEADLINE):
     """End the process with ``status`` (an int, or None for 0) after what a normal exit does that matters.
@@ -29,8 +36,9 @@ def exit_now(status, deadline=EXIT_DEADLINE):
     of :mod:`concurrent.futures`' executors), the ``atexit`` handlers (logging's flush, :mod:`multiprocessing`'s
     children, the finalizers of temporary directories, Ray's shutdown), then stdout and stderr flushed. A failure
     of any of these falls back to the normal exit, which retries what is left. Whatever of it still runs after
-    ``deadline`` seconds (a thread stuck in a call that never returns) is reported with every thread's stack on
-    stderr, and the process ends with ``status`` all the same.
+    ``deadline`` seconds (a thread stuck in a call that never returns) is logged, every thread's stack dumped on
+    stderr, and the process ends with ``status`` all the same; should that report itself get stuck,
+    faulthandler ends the process ``BACKSTOP`` seconds later (status 1, the stacks on stderr).
     """
     code = 0 if status is None else status
     if not isinstance(code, int):          # SystemExit's convention: anything else is printed, status 1
@@ -38,6 +46,10 @@ def exit_now(status, deadline=EXIT_DEADLINE):
     watchdog = threading.Timer(deadline, _leave_stuck, args=(code, deadline))
     watchdog.daemon = True                 # not among the threads the exit joins; it ends with the process
     watchdog.start()
+    try:
+        faulthandler.dump_traceback_later(deadline + BACKSTOP, exit=True)
+    except (AttributeError, OSError, ValueError):          # no stderr to dump to: the watchdog alone
+        pass
     try:
         threading._shutdown()
         atexit._run_exitfuncs()
@@ -48,13 +60,14 @@ def exit_now(status, deadline=EXIT_DEADLINE):
 
 
 def _leave_stuck(code, deadline):
-    """The exit's deadline passed: name the threads still running, print every thread's stack, end the process."""
+    """The exit's deadline passed: name the threads still running (logged), dump every thread's stack on stderr,
+    end the process with ``code``."""
     left = [t.name for t in threading.enumerate()
             if t is not threading.current_thread() and t is not threading.main_thread() and t.is_alive()]
     flush_standard_streams()
+    _log.error("exit: not done after %g s (threads still running: %s); every thread's stack follows on stderr",
+               deadline, ", ".join(left) or "none")
     try:
-        print(f"exit: not done after {deadline:g} s (threads still running: {', '.join(left) or 'none'}); "
-              "every thread's stack:", file=sys.stderr, flush=True)
         faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
     except (AttributeError, OSError, ValueError):          # no stderr left to write to: end all the same
         pass

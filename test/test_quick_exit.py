@@ -65,3 +65,26 @@ def test_a_thread_that_never_ends_does_not_keep_the_program_its_stack_is_printed
     assert done.stdout == "main done\n"
     assert "exit: not done after 1 s (threads still running: stuck-worker)" in done.stderr
     assert "in waits_for_ever" in done.stderr, done.stderr          # the stuck thread's own frame
+
+
+STUCK_LOGGING = """
+import logging, sys, threading
+from edm_planner.quick_exit import exit_now
+
+
+class Blocks(logging.Handler):                          # a handler whose output never drains
+    def emit(self, record):
+        threading.Event().wait()
+
+
+logging.getLogger().addHandler(Blocks())
+threading.Thread(target=logging.error, args=("never written",), name="logs-for-ever").start()
+exit_now(5, deadline=float(sys.argv[1]))
+"""
+
+
+def test_a_report_stuck_behind_a_thread_holding_logging_still_ends_the_process():
+    # the stuck thread holds the handler's lock, so the deadline's report blocks too: faulthandler ends it
+    done = subprocess.run([sys.executable, "-c", STUCK_LOGGING, "1.0"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1, done.stderr
+    assert "Timeout (0:00:06)!" in done.stderr and "in emit" in done.stderr, done.stderr
