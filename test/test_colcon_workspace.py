@@ -13,7 +13,6 @@ tells the install space's from it.
 import json
 import os
 import pathlib
-import shlex
 import shutil
 import signal
 import subprocess
@@ -25,39 +24,14 @@ from edm_planner_msgs.srv import LoadGeometry
 from rclpy.node import Node
 
 from conftest import REPO
-from ros_harness import ros_environment
+from user_shell import run_in_shell, shell_command, user_environment
 
 pytestmark = pytest.mark.slow
 
 #: the README's build command, run in the workspace root
 BUILD = "colcon build --base-paths src src/edm_planner/msg_defs"
 BUILD_TIMEOUT = 1200        # about 40 s idle on the two cores, 1-1.5 min under load
-UNDERLAY = REPO / "tools" / "ros_underlay.bash"
 PYTHON = f"python{sys.version_info.major}.{sys.version_info.minor}"
-
-
-def user_environment():
-    """A new shell's environment: nothing of this process's ROS, Python or library set-up, DDS kept local."""
-    env = ros_environment()         # loopback DDS, this run's domain, unbuffered output
-    for name in ("AMENT_PREFIX_PATH", "CMAKE_PREFIX_PATH", "COLCON_PREFIX_PATH", "PYTHONPATH", "LD_LIBRARY_PATH",
-                 "VIRTUAL_ENV", "_ROS_WHEELS_BOOTSTRAP_COMPLETE", "PYTHONHOME"):
-        env.pop(name, None)
-    venv_bin = os.path.join(sys.prefix, "bin")
-    env["PATH"] = os.pathsep.join(p for p in env.get("PATH", "/usr/bin:/bin").split(os.pathsep) if p != venv_bin)
-    return env
-
-
-def shell_command(ws, script, overlay=True):
-    """``bash -c``: the underlay, the workspace's install/setup.bash (if ``overlay``), then ``script``."""
-    steps = [f"source {shlex.quote(str(UNDERLAY))} {shlex.quote(sys.prefix)}", f"cd {shlex.quote(str(ws))}"]
-    if overlay:
-        steps.append("source install/setup.bash")
-    return ["bash", "-c", " && ".join(steps + [script])]
-
-
-def run_in_shell(ws, script, overlay=True, timeout=120, env=None):
-    return subprocess.run(shell_command(ws, script, overlay), env=env or user_environment(),
-                          capture_output=True, text=True, timeout=timeout)
 
 
 def copy_repository(dest):
