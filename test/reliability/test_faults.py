@@ -22,21 +22,13 @@ from edm_planner_msgs.srv import CheckInterference, ExecutePlan, LoadGeometry, P
 from rclpy.node import Node
 
 from edm_planner.nodes.geometry_loader import config_directory
+from edm_planner.nodes.programs.crash_drill import cpu_seconds
 
 from test_faults_records import store_rows
 from test_trajectory_planner_node import rear_design
 
-CLK_TCK = os.sysconf("SC_CLK_TCK")
-
 
 # -- helpers -----------------------------------------------------------------------------------
-
-def cpu_seconds(pid):
-    """User + system CPU time of a process (all its threads) [s]."""
-    with open(f"/proc/{pid}/stat") as f:
-        fields = f.read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLK_TCK
-
 
 def send(client, request):
     """Send a request; (future, event set when it completes)."""
@@ -52,7 +44,11 @@ def wait_busy(pid, done, cpu, timeout=300.0):
     The readiness signal that it is busy with it; fails if the answer came first.
     """
     start, deadline = cpu_seconds(pid), time.monotonic() + timeout
-    while cpu_seconds(pid) - start < cpu:
+    while True:
+        now = cpu_seconds(pid)
+        assert start is not None and now is not None, f"process {pid} ended before it was seen busy"
+        if now - start >= cpu:
+            break
         assert not done.is_set(), "the request was answered before the node was seen busy with it"
         assert time.monotonic() < deadline, f"process {pid} not busy after {timeout} s"
         time.sleep(0.01)
