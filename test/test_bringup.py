@@ -186,3 +186,40 @@ def test_a_killed_node_process_reports_its_signal_to_every_thread_that_polls_it(
         for t in threads:
             t.join(timeout=60)
         assert seen == [-signal.SIGKILL] * 8 and node.returncode == -signal.SIGKILL
+
+
+def test_a_killed_node_process_reports_its_signal_while_other_node_processes_start():
+    """``Process.start`` first polls every child of this process (multiprocessing's ``_cleanup``): a start in one
+    thread read a killed node's status while another thread polled it, and the poll got 255 ("the server was
+    killed") instead of -9 in about one round in eight. ``NodeProcess.started`` starts under the lock the polls
+    take."""
+    import threading
+    import time
+
+    from edm_planner.nodes.programs.bringup import _CONTEXT, NodeProcess
+
+    for _ in range(40):
+        node = NodeProcess.started(_CONTEXT.Process(target=time.sleep, args=(120,), daemon=True))
+        os.kill(node.pid, signal.SIGKILL)
+        start, seen, others = threading.Barrier(6), [], []
+
+        def poller():
+            start.wait()
+            deadline = time.monotonic() + 30
+            while (code := node.poll()) is None:
+                assert time.monotonic() < deadline, "the killed process was never reported"
+            seen.append(code)
+
+        def starter():
+            start.wait()
+            for _ in range(3):
+                other = NodeProcess.started(_CONTEXT.Process(target=time.sleep, args=(0,), daemon=True))
+                others.append(other.wait(timeout=30))
+
+        threads = [threading.Thread(target=poller if i % 2 else starter) for i in range(6)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(timeout=60)
+        assert seen == [-signal.SIGKILL] * 3 and node.returncode == -signal.SIGKILL
+        assert others == [0] * 9

@@ -58,18 +58,32 @@ def _run_node(name, argv, environ, log_path):
     raise SystemExit(importlib.import_module(_node_modules([name])[0]).main())
 
 
+#: held while a forked process's exit status may be read from the server's pipe: by ``NodeProcess.poll``, and by
+#: ``Process.start``, which first polls every child the process started (multiprocessing's ``_cleanup``)
+_STATUS_LOCK = threading.Lock()
+
+
 class NodeProcess:
     """A node forked by the server: the part of :class:`subprocess.Popen` that programs and tests use.
 
     Safe to poll and wait on from several threads (a program's call loop checks its nodes while another
-    thread waits for one): multiprocessing reads a forked process's exit status from the server's pipe once,
-    and a second thread reading at the same moment found the pipe empty and took it for a killed server, exit
-    code 255 instead of -9 (seen once in ``test_faults``); here one thread at a time reads it.
+    thread waits for one, or starts a node again): multiprocessing reads a forked process's exit status from
+    the server's pipe once, and a second thread reading at the same moment found the pipe empty and took it
+    for a killed server, exit code 255 instead of -9 (seen once in ``test_faults``). The second reader may be
+    any ``Process.start`` of this process (it polls every child first), so start processes with
+    :meth:`started`: polls and starts read the statuses one at a time.
     """
 
     def __init__(self, process):
         self._process = process
-        self._lock = threading.Lock()
+        self._lock = _STATUS_LOCK
+
+    @classmethod
+    def started(cls, process):
+        """Start a multiprocessing ``process`` of the server (status reads locked, see the class) and wrap it."""
+        with _STATUS_LOCK:
+            process.start()
+        return cls(process)
 
     @property
     def pid(self):
@@ -131,8 +145,7 @@ class Bringup:
             argv += [x for k, v in self.params.get(name, {}).items() for x in ("-p", f"{k}:={v}")]
             process = _CONTEXT.Process(target=_run_node, name=name, daemon=False,
                                        args=(name, argv, dict(os.environ), str(self.log_dir / f"{name}.log")))
-            process.start()
-            self.procs[name] = (NodeProcess(process), None)
+            self.procs[name] = (NodeProcess.started(process), None)
 
     def check_alive(self):
         for name, (proc, _) in self.procs.items():
