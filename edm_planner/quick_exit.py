@@ -25,6 +25,8 @@ EXIT_DEADLINE = 60.0
 #: seconds after the deadline at which faulthandler's own thread (C, no Python lock) dumps every stack and ends
 #: the process with status 1, should the report itself be stuck (a lock of logging held by a stuck thread)
 BACKSTOP = 5.0
+#: how the deadline's report starts (what a caller looks for in a program's output)
+STUCK_REPORT = "exit: not done after"
 
 _log = logging.getLogger(__name__)
 
@@ -65,8 +67,8 @@ def _leave_stuck(code, deadline):
     left = [t.name for t in threading.enumerate()
             if t is not threading.current_thread() and t is not threading.main_thread() and t.is_alive()]
     flush_standard_streams()
-    _log.error("exit: not done after %g s (threads still running: %s); every thread's stack follows on stderr",
-               deadline, ", ".join(left) or "none")
+    _log.error("%s %g s (threads still running: %s); every thread's stack follows on stderr",
+               STUCK_REPORT, deadline, ", ".join(left) or "none")
     try:
         faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
     except (AttributeError, OSError, ValueError):          # no stderr left to write to: end all the same
