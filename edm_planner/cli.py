@@ -37,7 +37,7 @@ configure_process()
 
 from .environment import CACHE_ROOT  # noqa: E402  (after the set-up above)
 from .errors import EdmError, ErrorCode  # noqa: E402
-from .quick_exit import exit_now  # noqa: E402
+from .quick_exit import exit_now, interrupt_outside_imports  # noqa: E402
 from .geometry.loader import load_geometry  # noqa: E402
 from .planning.plan import PlanOptions  # noqa: E402
 from .planning.planner import plan_channel  # noqa: E402
@@ -968,8 +968,10 @@ def _one_line(message):
 
 
 def run():
-    """The ``edm-plan`` console script: :func:`main`, then the process ends without Python's final teardown
+    """The ``edm-plan`` console script: :func:`main` (Ctrl-C never inside an import:
+    :func:`.quick_exit.interrupt_outside_imports`), then the process ends without Python's final teardown
     (:func:`.quick_exit.exit_now`: about 0.6 s of a command's time, Zen 3)."""
+    interrupt_outside_imports()
     exit_now(main())
 
 

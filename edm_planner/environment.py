@@ -1,4 +1,5 @@
-"""The process set-up every entry point does first: where numba keeps its compiled kernels, how OpenMP waits.
+"""The process set-up every entry point does first: where numba keeps its compiled kernels, how OpenMP waits,
+how many threads OpenBLAS runs.
 
 Importing :mod:`edm_planner` (or any module of it) changes nothing in the process. The entry points (the
 ``edm-plan`` command, the nodes, the programs of :mod:`edm_planner.nodes.programs` and :mod:`edm_planner.apps`,
@@ -25,14 +26,16 @@ KERNEL_MARKERS = (b"njit", b"numba.jit", b"@numba.", b"intrinsic", b"overload", 
 
 
 def _sources_digest(package, keep):
-    """A digest of the package's modules whose source ``keep(text)`` accepts (file name and text)."""
+    """A digest of the package's modules whose source ``keep(path, text)`` accepts (file name and text; ``path``
+    relative to ``package``)."""
     digest = hashlib.sha256()
     for folder, subfolders, files in sorted(os.walk(package)):
         subfolders.sort()
         for name in sorted(f for f in files if f.endswith(".py")):
-            with open(os.path.join(folder, name), "rb") as source:
+            path = os.path.join(folder, name)
+            with open(path, "rb") as source:
                 text = source.read()
-            if keep(text):
+            if keep(os.path.relpath(path, package), text):
                 digest.update(name.encode() + b"\0" + text)
     return digest.hexdigest()[:16]
 
@@ -48,13 +51,15 @@ def kernel_sources_digest(package=PACKAGE_DIR):
     defines no kernel (``KERNEL_MARKERS``) keeps the directory: recompiling
     every kernel costs a new process about a minute.
     """
-    return _sources_digest(package, lambda text: any(marker in text for marker in KERNEL_MARKERS))
+    # this module names the markers but defines no kernel: its edits keep the directory
+    return _sources_digest(package, lambda path, text: path != "environment.py"
+                           and any(marker in text for marker in KERNEL_MARKERS))
 
 
 def package_sources_digest(package=PACKAGE_DIR):
     """A digest of every module of the package (a few ms): what an on-disk cache of computed results is keyed
     by, so that any change of the code computes them anew (``geometry.electrode_cache``)."""
-    return _sources_digest(package, lambda text: True)
+    return _sources_digest(package, lambda path, text: True)
 
 
 def configure_process(environ=None):
@@ -67,6 +72,13 @@ def configure_process(environ=None):
     * ``OMP_WAIT_POLICY=PASSIVE`` unless given: numba's parallel kernels run on OpenMP, whose idle threads spin
       by default; with several processes at once (the nodes, the set designer's workers) spinning threads take
       the cores from the ones that work. Read when the OpenMP runtime starts (the first parallel kernel call).
+    * ``OPENBLAS_NUM_THREADS=1`` unless given: numpy's and SciPy's OpenBLAS start a thread per core, and their
+      sums split over threads add in another order (a plan's bits differed from a 1-core machine's to a 2-core
+      one's, by 1e-13 mm); held to one thread, every machine gives the same bits whatever its core count. The
+      core's matrices are small (the smoothing basis of a few hundred nodes), so threads do not pay: with the
+      set designer's two workers on two cores they waited for each other (the default blisk's set 32-33 s
+      with a thread per core, 30 s with one). Read when OpenBLAS loads (numpy's import); a process that
+      imported numpy or SciPy before this call is set through threadpoolctl.
 
     Call it before any kernel module is imported; if numba was imported already, its configuration is reloaded.
 
@@ -84,6 +96,22 @@ def configure_process(environ=None):
     if "NUMBA_CACHE_DIR" not in env:
         env["NUMBA_CACHE_DIR"] = os.path.join(NUMBA_CACHE_ROOT, kernel_sources_digest())
     env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    env.setdefault("OPENBLAS_NUM_THREADS", "1")
+    if environ is None:
+        _limit_loaded_blas(env["OPENBLAS_NUM_THREADS"])
     if environ is None and "numba" in sys.modules:      # imported before: it read its configuration already
         sys.modules["numba"].core.config.reload_config()
     return env["NUMBA_CACHE_DIR"]
+
+
+def _limit_loaded_blas(threads):
+    """The thread count of a BLAS loaded before :func:`configure_process` (it read its variable already)."""
+    if not any(name in sys.modules for name in ("numpy", "scipy")):
+        return
+    try:
+        count = int(threads)
+    except ValueError:
+        return                          # the caller's own setting, which OpenBLAS reads as it does
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=count, user_api="blas")

@@ -1,4 +1,14 @@
-"""Leaving a program's process without Python's final teardown: what ``edm-plan`` and ``make demo`` end with.
+"""Leaving a program's process: on Ctrl-C, and without Python's final teardown (what ``edm-plan`` and ``make demo``
+end with).
+
+Ctrl-C (:func:`interrupt_outside_imports`): Python raises a SIGINT's KeyboardInterrupt in whatever the main thread
+runs next, importlib's own code included; raised between its taking of the global import lock and the ``try`` that
+releases it (``_get_module_lock``, or the weak-reference callback that garbage collection runs anywhere), it leaves
+the lock held for good, and every other thread's next import waits for ever. Seen in ``make demo`` interrupted
+while its pictures thread imported matplotlib: the thread never ended, and the exit's deadline ended the process
+60 s later. The programs' handler raises KeyboardInterrupt only outside importlib's frames.
+
+Exit:
 
 A normal exit joins the non-daemon threads, runs the ``atexit`` handlers, then frees every module and object and
 runs the native libraries' destructors. That last part does nothing a later process reads, and after the planner,
@@ -14,6 +24,7 @@ import atexit
 import faulthandler
 import logging
 import os
+import signal
 import sys
 import threading
 
@@ -28,7 +39,40 @@ BACKSTOP = 5.0
 #: how the deadline's report starts (what a caller looks for in a program's output)
 STUCK_REPORT = "exit: not done after"
 
+#: how soon a signal that arrived during an import is raised again [s]
+INTERRUPT_RETRY = 0.01
+
 _log = logging.getLogger(__name__)
+
+
+def interrupt_outside_imports(*signums):
+    """Make each signal (default SIGINT) raise KeyboardInterrupt in the main thread, but never inside an import.
+
+    The handler looks at the main thread's stack where the signal arrived: within importlib's frames it sends
+    the signal again ``INTERRUPT_RETRY`` seconds later (until the import is done: a module's own code runs
+    within them too), elsewhere it raises KeyboardInterrupt as Python's default handler does. Installs it
+    also where the process started with the signal ignored (a background job of a non-interactive shell).
+    """
+    for signum in signums or (signal.SIGINT,):
+        signal.signal(signum, _raise_outside_imports)
+
+
+def _raise_outside_imports(signum, frame):
+    if _in_import(frame):
+        again = threading.Timer(INTERRUPT_RETRY, os.kill, args=(os.getpid(), signum))
+        again.daemon = True
+        again.start()
+        return
+    raise KeyboardInterrupt
+
+
+def _in_import(frame):
+    """Whether a frame of this stack is importlib's (the import system's own code, frozen in the interpreter)."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
 
 
 def exit_now(status, deadline=EXIT_DEADLINE):

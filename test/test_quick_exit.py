@@ -88,3 +88,57 @@ def test_a_report_stuck_behind_a_thread_holding_logging_still_ends_the_process()
     done = subprocess.run([sys.executable, "-c", STUCK_LOGGING, "1.0"], capture_output=True, text=True, timeout=120)
     assert done.returncode == 1, done.stderr
     assert "Timeout (0:00:06)!" in done.stderr and "in emit" in done.stderr, done.stderr
+
+
+#: Ctrl-C arriving inside importlib, made certain: a trace function sends SIGINT at the third line of the first
+#: ``_get_module_lock`` call (just after it took the global import lock), then another thread imports a module
+INTERRUPTED_IMPORT = """
+import os, signal, sys, threading, time
+from edm_planner.quick_exit import interrupt_outside_imports
+
+if sys.argv[1] == "ours":
+    interrupt_outside_imports()
+else:
+    signal.signal(signal.SIGINT, signal.default_int_handler)     # Python's own
+lines = []
+
+
+def tracer(frame, event, arg):
+    if frame.f_code.co_name != "_get_module_lock" or lines:
+        return None
+
+    def local(frame, event, arg):
+        if event == "line" and len(lines) < 3:
+            lines.append(frame.f_lineno)
+            if len(lines) == 3:
+                os.kill(os.getpid(), signal.SIGINT)
+        return local
+    return local
+
+
+sys.settrace(tracer)
+try:
+    import email.mime.text
+    print("import done", flush=True)
+    time.sleep(30)
+except KeyboardInterrupt:
+    print("interrupted", "email.mime.text" in sys.modules, flush=True)
+sys.settrace(None)
+other = threading.Thread(target=__import__, args=("xml.dom.minidom",), daemon=True)
+other.start()
+other.join(10)
+print("other thread's import", "stuck" if other.is_alive() else "done", flush=True)
+"""
+
+
+def test_ctrl_c_inside_an_import_is_raised_once_the_import_is_done_and_leaves_no_lock_held():
+    """With Python's handler the KeyboardInterrupt left the import machinery locked: another thread's next import
+    waited for ever (make demo's pictures thread, interrupted). The programs' handler raises it after the import."""
+    def run(handler):
+        done = subprocess.run([sys.executable, "-c", INTERRUPTED_IMPORT, handler], capture_output=True, text=True,
+                              timeout=120)
+        assert done.returncode == 0, done.stderr
+        return done.stdout.splitlines()
+
+    assert run("ours") == ["import done", "interrupted True", "other thread's import done"]
+    assert run("python") == ["interrupted False", "other thread's import stuck"]

@@ -38,6 +38,11 @@ def test_the_kernel_cache_directory_follows_every_kernel_source(tmp_path):
     assert os.environ["NUMBA_CACHE_DIR"] == os.path.join(NUMBA_CACHE_ROOT, first)
     (package / "paths.py").write_text((package / "paths.py").read_text() + "\n# no kernel here\n")
     assert kernel_sources_digest(str(package)) == first
+    # the module that names the markers (and so holds them) defines no kernel either
+    environment = package / "environment.py"
+    assert b"njit" in environment.read_bytes()
+    environment.write_text(environment.read_text() + "\n# an edit of the process set-up\n")
+    assert kernel_sources_digest(str(package)) == first
     # a module that calls numba but compiles nothing (the set designer: numba.set_num_threads)
     designer = package / "machining" / "electrode_set.py"
     assert b"numba.set_num_threads" in designer.read_bytes()
@@ -85,8 +90,8 @@ def test_importing_the_package_changes_nothing_and_the_set_up_call_does():
         "from edm_planner.environment import configure_process\n"
         "cache = configure_process()\n"
         "print(json.dumps({'changed': changed, 'cache': cache, 'env': os.environ.get('NUMBA_CACHE_DIR'),\n"
-        "                  'omp': os.environ.get('OMP_WAIT_POLICY')}))\n")
-    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "OMP_WAIT_POLICY")}
+        "                  'omp': os.environ.get('OMP_WAIT_POLICY'), 'blas': os.environ.get('OPENBLAS_NUM_THREADS')}))\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "OMP_WAIT_POLICY", "OPENBLAS_NUM_THREADS")}
     run = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env, capture_output=True, text=True,
                          timeout=300)
     assert run.returncode == 0, run.stderr[-2000:]
@@ -95,3 +100,40 @@ def test_importing_the_package_changes_nothing_and_the_set_up_call_does():
     from edm_planner.environment import NUMBA_CACHE_ROOT, kernel_sources_digest
     assert out["cache"] == out["env"] == os.path.join(NUMBA_CACHE_ROOT, kernel_sources_digest())
     assert out["omp"] == "PASSIVE"
+    assert out["blas"] == "1"
+
+
+#: a sum OpenBLAS splits over its threads (a dot product of 200 000 terms, numpy's and SciPy's library), printed
+#: as hex; ``{first}`` is what runs before the set-up call
+BLAS_SUMS = """
+import numpy as np
+{first}
+from edm_planner.environment import configure_process
+configure_process()
+import numpy as np, scipy.linalg.blas
+from threadpoolctl import threadpool_info
+rng = np.random.default_rng(7)
+a, b = rng.normal(size=200_000), rng.normal(size=200_000)
+print(float(a @ b).hex(), float(scipy.linalg.blas.ddot(a, b)).hex(),
+      sorted({{i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}}))
+"""
+
+
+def test_blas_sums_give_the_same_bits_whatever_the_core_count():
+    """numpy's and SciPy's OpenBLAS start a thread per core and split a long sum over them, in another order:
+    the set-up holds them to one thread, so a process gives the bits of a one-core machine on any machine (also
+    when it imported numpy before the set-up: threadpoolctl), unless the caller sets OPENBLAS_NUM_THREADS."""
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
+
+    def sums(first="", **extra):
+        run = subprocess.run([sys.executable, "-c", BLAS_SUMS.format(first=first)], cwd=REPO,
+                             env={**env, **extra}, capture_output=True, text=True, timeout=300)
+        assert run.returncode == 0, run.stderr[-2000:]
+        return run.stdout.strip().split(maxsplit=2)
+
+    default, one, early = sums(), sums(OPENBLAS_NUM_THREADS="1"), sums(first="import scipy.linalg")
+    assert default == one == early
+    assert default[0] == default[1] and default[2] == "[1]"
+    if (os.cpu_count() or 1) >= 2:        # a machine's default before: a thread per core, other bits
+        two = sums(OPENBLAS_NUM_THREADS="2")
+        assert two[2] == "[2]" and two[0] != default[0]

@@ -52,9 +52,10 @@ workers over 1 on this busy machine is within its noise, cold (0.84 to 1.21) and
 0.93): the other jobs take the cores. Figures: :data:`MEASURED`.
 
 Bits: the core's figures depend on the thread count of numpy's BLAS (a sizing step of the rear piece gives
-other plan bits with ``OMP_NUM_THREADS=1`` than with 2), and Ray sets ``OMP_NUM_THREADS=1`` in its workers;
-the Ray tasks therefore run with this process's count (:func:`blas_threads`), so that they give the bits of
-the same step run here and in the local workers.
+other plan bits with one OpenBLAS thread than with 2); every process runs one
+(:func:`~edm_planner.environment.configure_process`), and the Ray tasks are given this process's count
+(:func:`blas_threads`) whatever their node's environment, so that they give the bits of the same step run here
+and in the local workers.
 """
 
 import concurrent.futures
@@ -204,8 +205,9 @@ def _edm_task(token, initializer, initargs, fn, args):
 
 
 def blas_threads():
-    """OMP_NUM_THREADS of this process's BLAS as a string: as set, else the CPU count (OpenBLAS's default)."""
-    return os.environ.get("OMP_NUM_THREADS") or str(os.cpu_count() or 1)
+    """The thread count of this process's OpenBLAS as a string: OPENBLAS_NUM_THREADS (1 after
+    ``configure_process``), else OMP_NUM_THREADS, else the CPU count (OpenBLAS's order and default)."""
+    return os.environ.get("OPENBLAS_NUM_THREADS") or os.environ.get("OMP_NUM_THREADS") or str(os.cpu_count() or 1)
 
 
 def _loopback_environment(temp_dir):
@@ -289,10 +291,13 @@ class RayExecutor:
         self._token = secrets.token_hex(8)
         self._initargs = ray.put(tuple(initargs) + (self.reports,))
         self._initializer = initializer
-        # the driver's BLAS/OpenMP thread count, not Ray's OMP_NUM_THREADS=1: the core's sums (numpy's BLAS)
-        # give other bits with another count, and a task must give the bits of the same step run here
+        # the driver's BLAS thread count, whatever a node's environment sets: the core's sums (numpy's BLAS) give
+        # other bits with another count, and a task must give the bits of the same step run here; OpenMP's as
+        # the driver's too, not Ray's OMP_NUM_THREADS=1
+        env_vars = {"OPENBLAS_NUM_THREADS": blas_threads(),
+                    "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS") or str(os.cpu_count() or 1)}
         self._remote = ray.remote(num_cpus=1, max_retries=int(max_retries), retry_exceptions=False,
-                                  runtime_env={"env_vars": {"OMP_NUM_THREADS": blas_threads()}})(_edm_task)
+                                  runtime_env={"env_vars": env_vars})(_edm_task)
         self._refs = set()
         self._lock = threading.Lock()
         self.where = {}                 # node id -> tasks finished there

@@ -41,6 +41,7 @@ from ...environment import configure_process
 # this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
 configure_process()
 
+from ...quick_exit import interrupt_outside_imports
 from ...ros.shared import config_directory
 from ...ros import dds
 
@@ -330,7 +331,7 @@ def main(argv=None):
     p.add_argument("--field-cache", default=None)
     args = p.parse_args(argv)
     # killed (SIGTERM) or interrupted, the drill still stops every node it started (run()'s finally)
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    interrupt_outside_imports(signal.SIGTERM)
 
     setup = dds.loopback_unless_told()
     if args.dds == "stock":

@@ -32,7 +32,7 @@ from ...environment import configure_process
 # this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
 configure_process()
 
-from ...quick_exit import exit_now
+from ...quick_exit import exit_now, interrupt_outside_imports
 from ...ros.dds import use_loopback_udp
 from .bringup import NODES, Bringup
 
@@ -45,9 +45,9 @@ def main(argv=None):
                         help="follow each electrode's trajectory in real time (ExecutePlan feedback; minutes)")
     args = parser.parse_args(argv)
     # Ctrl-C and kill stop the nodes too: raise KeyboardInterrupt here even when the demo was started
-    # with SIGINT ignored (a background job of a non-interactive shell inherits SIG_IGN)
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    # with SIGINT ignored (a background job of a non-interactive shell inherits SIG_IGN), never inside an
+    # import (it would leave the import lock held, and the pictures thread's next import waited for ever)
+    interrupt_outside_imports(signal.SIGINT, signal.SIGTERM)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     use_loopback_udp()                      # again: the line above undid what importing edm_planner.nodes did
     os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 80))
