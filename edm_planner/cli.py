@@ -27,13 +27,13 @@ import sys
 import time
 from dataclasses import replace
 
-import numpy as np
-from tqdm import tqdm
-
 from .environment import configure_process
 
-# this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
+# this entry point's set-up, before numpy loads OpenBLAS and the core's kernel modules load (both read it then)
 configure_process()
+
+import numpy as np  # noqa: E402
+from tqdm import tqdm  # noqa: E402
 
 from .environment import CACHE_ROOT  # noqa: E402  (after the set-up above)
 from .errors import EdmError, ErrorCode  # noqa: E402

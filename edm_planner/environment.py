@@ -1,5 +1,5 @@
 """The process set-up every entry point does first: where numba keeps its compiled kernels, how OpenMP waits,
-how many threads OpenBLAS runs.
+how many threads and which kernels OpenBLAS runs.
 
 Importing :mod:`edm_planner` (or any module of it) changes nothing in the process. The entry points (the
 ``edm-plan`` command, the nodes, the programs of :mod:`edm_planner.nodes.programs` and :mod:`edm_planner.apps`,
@@ -9,13 +9,17 @@ it numba caches next to the sources (``__pycache__``), keyed by each kernel's ow
 """
 
 import hashlib
+import logging
 import os
+import platform
 import sys
 
 #: the user's cache: distance fields (keyed by geometry id) and, under ``numba/``, compiled kernels
 CACHE_ROOT = os.path.join(os.path.expanduser("~"), ".cache", "edm_planner")
 #: where our compiled numba kernels are kept, one subdirectory per version of the kernel sources
 NUMBA_CACHE_ROOT = os.path.join(CACHE_ROOT, "numba")
+#: OpenBLAS's kernels on every x86-64 CPU with AVX2 and FMA (see :func:`configure_process`)
+BLAS_CORETYPE = "Haswell"
 #: the package's source directory, whose kernels :func:`kernel_sources_digest` covers
 PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
 
@@ -79,6 +83,11 @@ def configure_process(environ=None):
       set designer's two workers on two cores they waited for each other (the default blisk's set 32-33 s
       with a thread per core, 30 s with one). Read when OpenBLAS loads (numpy's import); a process that
       imported numpy or SciPy before this call is set through threadpoolctl.
+    * ``OPENBLAS_CORETYPE=Haswell`` unless given, on an x86-64 CPU with AVX2 and FMA: OpenBLAS picks its
+      kernels by CPU when it loads, and its AVX-512 kernels (SkylakeX, on an AMD Zen 4 or a Xeon) sum in
+      another order than its AVX2 ones (Haswell, and Zen's, the same code): an AVX-512 machine gave other bits
+      than an AVX2 one. Every CPU with AVX2 runs the AVX2 kernels (a CPU without AVX2 keeps its own). Read
+      when OpenBLAS loads only: a process that loaded it before this call keeps its kernels (logged).
 
     Call it before any kernel module is imported; if numba was imported already, its configuration is reloaded.
 
@@ -97,21 +106,46 @@ def configure_process(environ=None):
         env["NUMBA_CACHE_DIR"] = os.path.join(NUMBA_CACHE_ROOT, kernel_sources_digest())
     env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     env.setdefault("OPENBLAS_NUM_THREADS", "1")
+    if "OPENBLAS_CORETYPE" not in env and _has_avx2_and_fma():
+        env["OPENBLAS_CORETYPE"] = BLAS_CORETYPE
     if environ is None:
-        _limit_loaded_blas(env["OPENBLAS_NUM_THREADS"])
+        _limit_loaded_blas(env["OPENBLAS_NUM_THREADS"], env.get("OPENBLAS_CORETYPE"))
     if environ is None and "numba" in sys.modules:      # imported before: it read its configuration already
         sys.modules["numba"].core.config.reload_config()
     return env["NUMBA_CACHE_DIR"]
 
 
-def _limit_loaded_blas(threads):
-    """The thread count of a BLAS loaded before :func:`configure_process` (it read its variable already)."""
+def _has_avx2_and_fma(cpuinfo="/proc/cpuinfo"):
+    """Whether this is an x86-64 CPU with AVX2 and FMA (its first processor's flags in ``cpuinfo``)."""
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        return False
+    try:
+        with open(cpuinfo) as f:
+            for line in f:
+                if line.startswith("flags"):
+                    return {"avx2", "fma"} <= set(line.partition(":")[2].split())
+                if not line.strip():            # the first processor's block ends
+                    break
+    except OSError:
+        pass
+    return False
+
+
+def _limit_loaded_blas(threads, coretype):
+    """A BLAS loaded before :func:`configure_process` read its variables already: its thread count set now
+    (threadpoolctl), and a warning where it runs other kernels than ``coretype``."""
     if not any(name in sys.modules for name in ("numpy", "scipy")):
         return
-    try:
-        count = int(threads)
-    except ValueError:
-        return                          # the caller's own setting, which OpenBLAS reads as it does
-    from threadpoolctl import threadpool_limits
+    from threadpoolctl import threadpool_info, threadpool_limits
 
-    threadpool_limits(limits=count, user_api="blas")
+    try:
+        threadpool_limits(limits=int(threads), user_api="blas")
+    except ValueError:
+        pass                            # the caller's own setting, which OpenBLAS reads as it does
+    other = sorted({lib.get("architecture") for lib in threadpool_info() if lib.get("internal_api") == "openblas"}
+                   - {coretype})
+    if coretype and other:
+        logging.getLogger(__name__).warning(
+            "OpenBLAS was loaded before the process set-up and runs its %s kernels, not %s: its sums may differ "
+            "from other processes' in the last bits (call configure_process before importing numpy)",
+            ", ".join(map(str, other)), coretype)

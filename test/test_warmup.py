@@ -4,6 +4,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from conftest import REPO
 
 
@@ -103,10 +105,9 @@ def test_importing_the_package_changes_nothing_and_the_set_up_call_does():
     assert out["blas"] == "1"
 
 
-#: a sum OpenBLAS splits over its threads (a dot product of 200 000 terms, numpy's and SciPy's library), printed
-#: as hex; ``{first}`` is what runs before the set-up call
+#: a sum OpenBLAS splits over its threads (a dot product of 200 000 terms, numpy's and SciPy's library) as hex,
+#: then the libraries' thread counts and kernels; ``{first}`` is what runs before the set-up call
 BLAS_SUMS = """
-import numpy as np
 {first}
 from edm_planner.environment import configure_process
 configure_process()
@@ -114,26 +115,53 @@ import numpy as np, scipy.linalg.blas
 from threadpoolctl import threadpool_info
 rng = np.random.default_rng(7)
 a, b = rng.normal(size=200_000), rng.normal(size=200_000)
+blas = [lib for lib in threadpool_info() if lib["internal_api"] == "openblas"]
 print(float(a @ b).hex(), float(scipy.linalg.blas.ddot(a, b)).hex(),
-      sorted({{i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}}))
+      ",".join(sorted({{str(lib["num_threads"]) for lib in blas}})),
+      ",".join(sorted({{str(lib["architecture"]) for lib in blas}})))
 """
+
+
+def blas_sums(first="", **environ):
+    """BLAS_SUMS in a new process: ([numpy's sum, SciPy's sum, thread counts, kernels], stderr)."""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_CORETYPE")}
+    run = subprocess.run([sys.executable, "-c", BLAS_SUMS.format(first=first)], cwd=REPO, env={**env, **environ},
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    return run.stdout.split(), run.stderr
 
 
 def test_blas_sums_give_the_same_bits_whatever_the_core_count():
     """numpy's and SciPy's OpenBLAS start a thread per core and split a long sum over them, in another order:
-    the set-up holds them to one thread, so a process gives the bits of a one-core machine on any machine (also
-    when it imported numpy before the set-up: threadpoolctl), unless the caller sets OPENBLAS_NUM_THREADS."""
-    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
-
-    def sums(first="", **extra):
-        run = subprocess.run([sys.executable, "-c", BLAS_SUMS.format(first=first)], cwd=REPO,
-                             env={**env, **extra}, capture_output=True, text=True, timeout=300)
-        assert run.returncode == 0, run.stderr[-2000:]
-        return run.stdout.strip().split(maxsplit=2)
-
-    default, one, early = sums(), sums(OPENBLAS_NUM_THREADS="1"), sums(first="import scipy.linalg")
-    assert default == one == early
-    assert default[0] == default[1] and default[2] == "[1]"
+    the set-up holds them to one thread (also where numpy was imported before it: threadpoolctl), so a process
+    gives the bits of a one-core machine on any machine, unless the caller sets OPENBLAS_NUM_THREADS."""
+    default, _ = blas_sums()
+    assert blas_sums(OPENBLAS_NUM_THREADS="1")[0] == default
+    assert default[0] == default[1] and default[2] == "1"
+    early, _ = blas_sums(first="import numpy, scipy.linalg")
+    assert early[2] == "1"
     if (os.cpu_count() or 1) >= 2:        # a machine's default before: a thread per core, other bits
-        two = sums(OPENBLAS_NUM_THREADS="2")
-        assert two[2] == "[2]" and two[0] != default[0]
+        two, _ = blas_sums(OPENBLAS_NUM_THREADS="2")
+        assert two[2] == "2" and two[0] != default[0]
+
+
+def test_blas_runs_the_avx2_kernels_on_every_avx2_cpu():
+    """OpenBLAS picks its kernels by CPU, and its AVX-512 ones (SkylakeX: an AMD Zen 4, a Xeon) sum in another
+    order than its AVX2 ones (Haswell, and Zen's, the same code): the set-up makes every CPU with AVX2 run the
+    AVX2 kernels, so an AVX-512 machine gives an AVX2 machine's bits. A process that loaded numpy before the
+    set-up keeps its kernels, and says so."""
+    from edm_planner.environment import BLAS_CORETYPE, _has_avx2_and_fma
+
+    if not _has_avx2_and_fma():
+        pytest.skip("a CPU without AVX2 and FMA keeps OpenBLAS's own choice")
+    default, _ = blas_sums()
+    assert default[3] == BLAS_CORETYPE == "Haswell"
+    assert blas_sums(OPENBLAS_CORETYPE="Zen")[0][:2] == default[:2]       # an AMD Zen 2 or 3
+    with open("/proc/cpuinfo") as f:
+        avx512 = "avx512f" in f.read().split("\n\n")[0]
+    if avx512:
+        own, _ = blas_sums(OPENBLAS_CORETYPE="SkylakeX")                  # what this CPU ran before
+        assert own[3] == "SkylakeX" and own[0] != default[0]
+        early, stderr = blas_sums(first="import numpy, scipy.linalg")
+        assert early[3] == "SkylakeX" and "OpenBLAS was loaded before the process set-up" in stderr

@@ -25,13 +25,13 @@ import sys
 import tempfile
 import time
 
-import numpy as np
-import trimesh
-
 from .. import environment
 
 # this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
 environment.configure_process()
+
+import numpy as np  # noqa: E402
+import trimesh  # noqa: E402
 
 from ..geometry.loader import load_geometry  # noqa: E402  (after the set-up above)
 from ..interference.fast import FastChannelField  # noqa: E402

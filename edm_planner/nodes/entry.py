@@ -7,9 +7,11 @@ then the process ends without Python's final teardown of rclpy, numba and the co
 import importlib
 
 from ..quick_exit import exit_now
+from ..ros.startup import prepare_process
 
 
 def _run(name):
+    prepare_process()           # before the node's module imports the messages and numpy (OpenBLAS reads it)
     exit_now(importlib.import_module(f"{__package__}.{name}").main())
 
 

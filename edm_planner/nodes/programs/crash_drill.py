@@ -31,15 +31,15 @@ import tempfile
 import threading
 import time
 
+from ...environment import configure_process
+
+# this entry point's set-up, before numpy loads OpenBLAS and the core's kernel modules load (both read it)
+configure_process()
+
 import rclpy
 from edm_planner_msgs.srv import CheckInterference, ExecutePlan, LoadGeometry, PlanChannel
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
-
-from ...environment import configure_process
-
-# this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
-configure_process()
 
 from ...quick_exit import interrupt_outside_imports
 from ...ros.shared import config_directory

@@ -24,17 +24,17 @@ import sys
 import threading
 import time
 
+from ...environment import configure_process
+
+# this entry point's set-up, before numpy loads OpenBLAS and the core's kernel modules load (both read it)
+configure_process()
+
 import numpy as np
 import rclpy
 from edm_planner_msgs.srv import CheckInterference, LoadGeometry
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-
-from ...environment import configure_process
-
-# this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
-configure_process()
 
 from ...ros.conversions import matrices_to_poses
 from ...ros.dds import loopback_unless_told

@@ -29,6 +29,11 @@ import tempfile
 import threading
 import time
 
+from ...environment import CACHE_ROOT, configure_process
+
+# this entry point's set-up, before numpy loads OpenBLAS and the core's kernel modules load (both read it)
+configure_process()
+
 import numpy as np
 import rclpy
 from edm_planner_msgs.msg import ElectrodeDesign
@@ -36,11 +41,6 @@ from edm_planner_msgs.srv import CheckInterference, PlanChannel
 from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-
-from ...environment import CACHE_ROOT, configure_process
-
-# this entry point's set-up, before the core's kernel modules load (numba reads its cache directory then)
-configure_process()
 
 from ...geometry.loader import parse_document
 from ...ros.shared import config_directory
