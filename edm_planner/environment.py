@@ -106,7 +106,7 @@ def configure_process(environ=None):
         env["NUMBA_CACHE_DIR"] = os.path.join(NUMBA_CACHE_ROOT, kernel_sources_digest())
     env.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     env.setdefault("OPENBLAS_NUM_THREADS", "1")
-    if "OPENBLAS_CORETYPE" not in env and _has_avx2_and_fma():
+    if not env.get("OPENBLAS_CORETYPE") and _has_avx2_and_fma():
         env["OPENBLAS_CORETYPE"] = BLAS_CORETYPE
     if environ is None:
         _limit_loaded_blas(env["OPENBLAS_NUM_THREADS"], env.get("OPENBLAS_CORETYPE"))
@@ -144,7 +144,7 @@ def _limit_loaded_blas(threads, coretype):
         pass                            # the caller's own setting, which OpenBLAS reads as it does
     other = sorted({lib.get("architecture") for lib in threadpool_info() if lib.get("internal_api") == "openblas"}
                    - {coretype})
-    if coretype and other:
+    if coretype == BLAS_CORETYPE and other:          # a caller's own choice is theirs to check
         logging.getLogger(__name__).warning(
             "OpenBLAS was loaded before the process set-up and runs its %s kernels, not %s: its sums may differ "
             "from other processes' in the last bits (call configure_process before importing numpy)",
