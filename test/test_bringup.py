@@ -152,39 +152,46 @@ def test_the_server_runs_every_atexit_handler_then_leaves_without_the_teardown(t
     assert (tmp_path / "atexit").exists() and not (tmp_path / "teardown").exists()
 
 
+def _killed_while(node, other, count):
+    """SIGKILL ``node``, then ``count`` threads at once: pollers of it, and (every second one) ``other(seen)``;
+    the exit codes they saw (``other`` adds its own to the list it is given)."""
+    import threading
+    import time
+
+    os.kill(node.pid, signal.SIGKILL)
+    start, seen = threading.Barrier(count), []
+
+    def poller():
+        start.wait()
+        deadline = time.monotonic() + 30
+        while (code := node.poll()) is None:
+            assert time.monotonic() < deadline, "the killed process was never reported"
+        seen.append(code)
+
+    def run_other():
+        start.wait()
+        other(seen)
+
+    threads = [threading.Thread(target=run_other if i % 2 else poller) for i in range(count)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=60)
+    return seen
+
+
 def test_a_killed_node_process_reports_its_signal_to_every_thread_that_polls_it():
     """multiprocessing reads a forked process's exit status from the fork server's pipe once; threads that poll
     and wait at the same moment must all get SIGKILL's -9 (a second reader once got 255, "the server was
     killed", and make demo's client would have named the wrong cause)."""
-    import threading
     import time
 
     from edm_planner.nodes.programs.bringup import _CONTEXT, NodeProcess
 
     for _ in range(12):
-        process = _CONTEXT.Process(target=time.sleep, args=(120,), daemon=True)
-        process.start()
-        node = NodeProcess(process)
+        node = NodeProcess.started(_CONTEXT.Process(target=time.sleep, args=(120,), daemon=True))
         assert node.poll() is None
-        os.kill(node.pid, signal.SIGKILL)
-        start, seen = threading.Barrier(8), []
-
-        def waiter():
-            start.wait()
-            seen.append(node.wait(timeout=30))
-
-        def poller():
-            start.wait()
-            deadline = time.monotonic() + 30
-            while (code := node.poll()) is None:
-                assert time.monotonic() < deadline, "the killed process was never reported"
-            seen.append(code)
-
-        threads = [threading.Thread(target=waiter if i % 2 else poller) for i in range(8)]
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join(timeout=60)
+        seen = _killed_while(node, lambda seen: seen.append(node.wait(timeout=30)), 8)
         assert seen == [-signal.SIGKILL] * 8 and node.returncode == -signal.SIGKILL
 
 
@@ -193,33 +200,18 @@ def test_a_killed_node_process_reports_its_signal_while_other_node_processes_sta
     thread read a killed node's status while another thread polled it, and the poll got 255 ("the server was
     killed") instead of -9 in about one round in eight. ``NodeProcess.started`` starts under the lock the polls
     take."""
-    import threading
     import time
 
     from edm_planner.nodes.programs.bringup import _CONTEXT, NodeProcess
 
+    def start_others(seen):
+        for _ in range(3):
+            other = NodeProcess.started(_CONTEXT.Process(target=time.sleep, args=(0,), daemon=True))
+            others.append(other.wait(timeout=30))
+
     for _ in range(40):
         node = NodeProcess.started(_CONTEXT.Process(target=time.sleep, args=(120,), daemon=True))
-        os.kill(node.pid, signal.SIGKILL)
-        start, seen, others = threading.Barrier(6), [], []
-
-        def poller():
-            start.wait()
-            deadline = time.monotonic() + 30
-            while (code := node.poll()) is None:
-                assert time.monotonic() < deadline, "the killed process was never reported"
-            seen.append(code)
-
-        def starter():
-            start.wait()
-            for _ in range(3):
-                other = NodeProcess.started(_CONTEXT.Process(target=time.sleep, args=(0,), daemon=True))
-                others.append(other.wait(timeout=30))
-
-        threads = [threading.Thread(target=poller if i % 2 else starter) for i in range(6)]
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join(timeout=60)
+        others = []
+        seen = _killed_while(node, start_others, 6)
         assert seen == [-signal.SIGKILL] * 3 and node.returncode == -signal.SIGKILL
         assert others == [0] * 9
