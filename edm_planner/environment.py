@@ -20,6 +20,9 @@ CACHE_ROOT = os.path.join(os.path.expanduser("~"), ".cache", "edm_planner")
 NUMBA_CACHE_ROOT = os.path.join(CACHE_ROOT, "numba")
 #: OpenBLAS's kernels on every x86-64 CPU with AVX2 and FMA (see :func:`configure_process`)
 BLAS_CORETYPE = "Haswell"
+#: whether this process's OpenBLAS is set up: loaded after :func:`configure_process` set its variables, or set by
+#: it through threadpoolctl (about 70 ms, once: a node's module sets up again after its messages loaded numpy)
+_blas_set_up = False
 #: the package's source directory, whose kernels :func:`kernel_sources_digest` covers
 PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
 
@@ -108,8 +111,10 @@ def configure_process(environ=None):
     env.setdefault("OPENBLAS_NUM_THREADS", "1")
     if not env.get("OPENBLAS_CORETYPE") and _has_avx2_and_fma():
         env["OPENBLAS_CORETYPE"] = BLAS_CORETYPE
-    if environ is None:
+    global _blas_set_up
+    if environ is None and not _blas_set_up:
         _limit_loaded_blas(env["OPENBLAS_NUM_THREADS"], env.get("OPENBLAS_CORETYPE"))
+        _blas_set_up = True             # OpenBLAS loads after this call, or was set (and checked) just now
     if environ is None and "numba" in sys.modules:      # imported before: it read its configuration already
         sys.modules["numba"].core.config.reload_config()
     return env["NUMBA_CACHE_DIR"]
