@@ -120,20 +120,26 @@ def configure_process(environ=None):
     return env["NUMBA_CACHE_DIR"]
 
 
-def _has_avx2_and_fma(cpuinfo="/proc/cpuinfo"):
-    """Whether this is an x86-64 CPU with AVX2 and FMA (its first processor's flags in ``cpuinfo``)."""
-    if platform.machine().lower() not in ("x86_64", "amd64"):
-        return False
+def first_cpu_info(cpuinfo="/proc/cpuinfo"):
+    """The first processor's fields of ``cpuinfo`` (Linux's /proc/cpuinfo), by name; {} where there is none."""
+    info = {}
     try:
         with open(cpuinfo) as f:
             for line in f:
-                if line.startswith("flags"):
-                    return {"avx2", "fma"} <= set(line.partition(":")[2].split())
                 if not line.strip():            # the first processor's block ends
                     break
+                key, _, value = line.partition(":")
+                info[key.strip()] = value.strip()
     except OSError:
         pass
-    return False
+    return info
+
+
+def _has_avx2_and_fma():
+    """Whether this is an x86-64 CPU with AVX2 and FMA."""
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        return False
+    return {"avx2", "fma"} <= set(first_cpu_info().get("flags", "").split())
 
 
 def _limit_loaded_blas(threads, coretype):

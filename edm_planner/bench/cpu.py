@@ -16,6 +16,8 @@ import numba
 from numba.core import config
 from numba.core.registry import cpu_target
 
+from ..environment import first_cpu_info
+
 #: the SIMD features that decide how the kernels vectorise, in the order reported
 SIMD_FEATURES = ("sse4.2", "avx", "avx2", "fma", "avx512f", "avx512dq", "avx512bw", "avx512vl")
 
@@ -24,19 +26,6 @@ SIMD_FEATURES = ("sse4.2", "avx", "avx2", "fma", "avx512f", "avx512dq", "avx512b
 AVX2_TARGET = ("znver3", "+64bit,+sse,+sse2,+sse3,+ssse3,+sse4.1,+sse4.2,+popcnt,+cmov,+cx8,+cx16,+fxsr,+mmx,"
                          "+avx,+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,+movbe,+xsave,-avx512f,-avx512dq,-avx512bw,"
                          "-avx512vl,-avx512cd,-avx512vnni,-avx512bf16,-avx512fp16,-amx-tile")
-
-
-def _cpuinfo():
-    """The first processor's fields of /proc/cpuinfo ({} where there is none)."""
-    try:
-        text = pathlib.Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return {}
-    info = {}
-    for line in text.split("\n\n")[0].splitlines():
-        key, _, value = line.partition(":")
-        info[key.strip()] = value.strip()
-    return info
 
 
 def _khz(name):
@@ -60,7 +49,7 @@ def compile_target():
 def cpu_record():
     """The CPU and the kernels' compile target, for a benchmark's JSON."""
 
-    info = _cpuinfo()
+    info = first_cpu_info()
     flags = set(info.get("flags", "").split())
     name, features = compile_target()
     max_khz, cur_khz = _khz("cpuinfo_max_freq"), _khz("scaling_cur_freq")
