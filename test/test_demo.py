@@ -5,6 +5,7 @@ import os
 import re
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -166,8 +167,12 @@ def test_the_failure_report_names_the_process_that_keeps_an_output_open():
     try:
         assert shell.stdout.readline() == "started\n"
         shell.wait(timeout=30)                           # the shell is gone; the sleep it left keeps the pipe open
-        holders = pipe_holders(shell.stdout)
-        assert [cmd for _, cmd in holders] == ["sleep 60"], holders
+        # the background job is a fork of the shell until it has exec'd sleep (seen under load: its command line
+        # still the shell's): wait for that, with a deadline
+        deadline = time.monotonic() + 30
+        while [cmd for _, cmd in (holders := pipe_holders(shell.stdout))] != ["sleep 60"]:
+            assert time.monotonic() < deadline, holders
+            time.sleep(0.05)
         assert f"pid {holders[0][0]} holds the pipe: sleep 60" in holders_report(shell.stdout)
     finally:
         for pid, _ in pipe_holders(shell.stdout):
