@@ -170,9 +170,11 @@ def test_the_failure_report_names_the_process_that_keeps_an_output_open():
         # the background job is a fork of the shell until it has exec'd sleep (seen under load: its command line
         # still the shell's): wait for that, with a deadline
         deadline = time.monotonic() + 30
-        while [cmd for _, cmd in (holders := pipe_holders(shell.stdout))] != ["sleep 60"]:
+        holders = pipe_holders(shell.stdout)
+        while [cmd for _, cmd in holders] != ["sleep 60"]:
             assert time.monotonic() < deadline, holders
             time.sleep(0.05)
+            holders = pipe_holders(shell.stdout)
         assert f"pid {holders[0][0]} holds the pipe: sleep 60" in holders_report(shell.stdout)
     finally:
         for pid, _ in pipe_holders(shell.stdout):
