@@ -151,16 +151,14 @@ def test_blas_runs_the_avx2_kernels_on_every_avx2_cpu():
     order than its AVX2 ones (Haswell, and Zen's, the same code): the set-up makes every CPU with AVX2 run the
     AVX2 kernels, so an AVX-512 machine gives an AVX2 machine's bits. A process that loaded numpy before the
     set-up keeps its kernels, and says so."""
-    from edm_planner.environment import BLAS_CORETYPE, _has_avx2_and_fma
+    from edm_planner.environment import BLAS_CORETYPE, _has_avx2_and_fma, first_cpu_info
 
     if not _has_avx2_and_fma():
         pytest.skip("a CPU without AVX2 and FMA keeps OpenBLAS's own choice")
     default, _ = blas_sums()
     assert default[3] == BLAS_CORETYPE == "Haswell"
     assert blas_sums(OPENBLAS_CORETYPE="Zen")[0][:2] == default[:2]       # an AMD Zen 2 or 3
-    with open("/proc/cpuinfo") as f:
-        avx512 = "avx512f" in f.read().split("\n\n")[0]
-    if avx512:
+    if "avx512f" in first_cpu_info().get("flags", "").split():
         own, _ = blas_sums(OPENBLAS_CORETYPE="SkylakeX")                  # what this CPU ran before
         assert own[3] == "SkylakeX" and own[0] != default[0]
         early, stderr = blas_sums(first="import numpy, scipy.linalg")
